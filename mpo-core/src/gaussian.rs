@@ -1,0 +1,343 @@
+//! The policy's full-covariance Gaussian, parameterised by its Cholesky factor.
+//!
+//! The network's head outputs a mean (`A` values) and the lower triangle of `L` (`T = A(A+1)/2`
+//! values, row by row: `(0,0), (1,0), (1,1), (2,0), ...`). The diagonal goes through a softplus
+//! plus a floor so `L` stays invertible; `Sigma = L L^T`. Every density and divergence goes
+//! through triangular solves, never an explicit inverse (ALGORITHM-NOTES.md, item 6).
+//!
+//! KL(old || new) splits exactly into a mean part and a covariance part (the report swaps
+//! their names, ALGORITHM-NOTES.md item 1):
+//! - mean part `0.5 (mu - mu_old)^T Sigma^-1 (mu - mu_old)`;
+//! - covariance part `0.5 (tr(Sigma^-1 Sigma_old) - A + ln det Sigma - ln det Sigma_old)`.
+//!
+//! The M-step's decoupled constraints evaluate the mean part with `Sigma = Sigma_old` (the
+//! distribution `N(mu_theta, Sigma_old)`) and the covariance part with `mu = mu_old`.
+//!
+//! Gradients are returned with respect to `mu` and `L`, and mapped to the raw head outputs by
+//! [`head_backward`]. Only the lower triangle of an `L` gradient is meaningful.
+
+use crate::rng::Rng;
+
+/// `ln(2 pi)`.
+const LN_2PI: f32 = 1.837_877_1;
+
+/// Index of `L[j][k]` (`k <= j`) in the packed lower triangle.
+#[inline(always)]
+pub const fn tri_index(j: usize, k: usize) -> usize {
+    j * (j + 1) / 2 + k
+}
+
+/// Numerically stable `ln(1 + e^x)`.
+#[inline]
+pub fn softplus(x: f32) -> f32 {
+    if x > 20.0 {
+        x
+    } else {
+        libm::log1pf(libm::expf(x))
+    }
+}
+
+/// `1 / (1 + e^-x)`, the derivative of [`softplus`].
+#[inline]
+pub fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + libm::expf(-x))
+}
+
+/// Inverse of [`softplus`] for positive `y` (used to initialise a head to a chosen scale).
+pub fn softplus_inverse(y: f32) -> f32 {
+    if y > 20.0 {
+        y
+    } else {
+        libm::logf(libm::expm1f(y))
+    }
+}
+
+/// A Gaussian `N(mu, L L^T)` over `A` action dimensions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gaussian<const A: usize> {
+    /// Mean.
+    pub mu: [f32; A],
+    /// Lower-triangular Cholesky factor with a positive diagonal (zeros above the diagonal).
+    pub l: [[f32; A]; A],
+}
+
+/// The two parts of KL(old || new); they sum to the full divergence.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct KlParts {
+    /// `0.5 (mu - mu_old)^T Sigma^-1 (mu - mu_old)`.
+    pub mean: f32,
+    /// `0.5 (tr(Sigma^-1 Sigma_old) - A + ln det Sigma - ln det Sigma_old)`.
+    pub cov: f32,
+}
+
+impl KlParts {
+    /// The full divergence.
+    pub fn total(&self) -> f32 {
+        self.mean + self.cov
+    }
+}
+
+/// Gradient of a scalar with respect to a Gaussian's `mu` and `L`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GaussianGrad<const A: usize> {
+    /// d/d mu.
+    pub mu: [f32; A],
+    /// d/d L (lower triangle meaningful, the rest kept at zero).
+    pub l: [[f32; A]; A],
+}
+
+impl<const A: usize> GaussianGrad<A> {
+    /// All zeros.
+    pub const ZERO: Self = Self {
+        mu: [0.0; A],
+        l: [[0.0; A]; A],
+    };
+}
+
+impl<const A: usize> Gaussian<A> {
+    /// Builds the distribution from raw head outputs: `L_jj = softplus(raw) + floor`.
+    pub fn from_head<const T: usize>(mean: &[f32; A], chol: &[f32; T], floor: f32) -> Self {
+        const { assert!(T == A * (A + 1) / 2, "T must be A(A+1)/2") };
+        let mut l = [[0f32; A]; A];
+        for j in 0..A {
+            for k in 0..j {
+                l[j][k] = chol[tri_index(j, k)];
+            }
+            l[j][j] = softplus(chol[tri_index(j, j)]) + floor;
+        }
+        Self { mu: *mean, l }
+    }
+
+    /// Solves `L x = b` (forward substitution).
+    pub fn solve_l(&self, b: &[f32; A]) -> [f32; A] {
+        solve_lower(&self.l, b)
+    }
+
+    /// `sum_j ln L_jj = 0.5 ln det Sigma`.
+    pub fn half_log_det(&self) -> f32 {
+        let mut s = 0.0;
+        for j in 0..A {
+            s += libm::logf(self.l[j][j]);
+        }
+        s
+    }
+
+    /// Draws `a = mu + L z` with `z ~ N(0, I)`.
+    pub fn sample(&self, rng: &mut Rng, a: &mut [f32; A]) {
+        let mut z = [0f32; A];
+        rng.fill_normal(&mut z);
+        self.transform(&z, a);
+    }
+
+    /// `a = mu + L z` for a given standard-normal `z`.
+    pub fn transform(&self, z: &[f32; A], a: &mut [f32; A]) {
+        for j in 0..A {
+            let mut v = self.mu[j];
+            for k in 0..=j {
+                v += self.l[j][k] * z[k];
+            }
+            a[j] = v;
+        }
+    }
+
+    /// `ln N(a; mu, L L^T)`.
+    pub fn log_prob(&self, a: &[f32; A]) -> f32 {
+        let z = self.whiten(a);
+        let mut q = 0.0;
+        for v in z {
+            q += v * v;
+        }
+        -0.5 * q - self.half_log_det() - 0.5 * A as f32 * LN_2PI
+    }
+
+    /// `z = L^-1 (a - mu)`.
+    fn whiten(&self, a: &[f32; A]) -> [f32; A] {
+        let mut d = [0f32; A];
+        for j in 0..A {
+            d[j] = a[j] - self.mu[j];
+        }
+        solve_lower(&self.l, &d)
+    }
+
+    /// Adds `c * d ln N(a) / d(mu, L)` into `g`; returns `ln N(a)`.
+    ///
+    /// `d/d mu = L^-T z`, `d/d L_jk = (L^-T z)_j z_k - [j = k] / L_jj` with `z = L^-1 (a - mu)`.
+    pub fn log_prob_grad(&self, a: &[f32; A], c: f32, g: &mut GaussianGrad<A>) -> f32 {
+        let z = self.whiten(a);
+        let w = solve_upper_t(&self.l, &z);
+        let mut q = 0.0;
+        for j in 0..A {
+            q += z[j] * z[j];
+            g.mu[j] += c * w[j];
+            for k in 0..j {
+                g.l[j][k] += c * (w[j] * z[k]);
+            }
+            g.l[j][j] += c * (w[j] * z[j] - 1.0 / self.l[j][j]);
+        }
+        -0.5 * q - self.half_log_det() - 0.5 * A as f32 * LN_2PI
+    }
+
+    /// Differential entropy `0.5 A (1 + ln 2 pi) + sum_j ln L_jj`.
+    pub fn entropy(&self) -> f32 {
+        0.5 * A as f32 * (1.0 + LN_2PI) + self.half_log_det()
+    }
+
+    /// Standard deviations `sqrt(Sigma_jj)` (for logging).
+    pub fn std_devs(&self) -> [f32; A] {
+        let mut s = [0f32; A];
+        for j in 0..A {
+            let mut v = 0.0;
+            for k in 0..=j {
+                v += self.l[j][k] * self.l[j][k];
+            }
+            s[j] = libm::sqrtf(v);
+        }
+        s
+    }
+}
+
+/// KL(old || new) in its two parts.
+pub fn kl_parts<const A: usize>(old: &Gaussian<A>, new: &Gaussian<A>) -> KlParts {
+    kl_parts_impl(old, new, None, 0.0, 0.0)
+}
+
+/// KL(old || new) in its two parts, adding `c_mean * d(mean part) + c_cov * d(cov part)`
+/// with respect to the new distribution's `(mu, L)` into `g`.
+///
+/// - mean part, `y = L^-1 (mu - mu_old)`, `u = L^-T y`: `d/d mu = u`, `d/d L = -u y^T`;
+/// - covariance part, `M = L^-1 L_old`: `d/d L = -L^-T M M^T + diag(1 / L_jj)`.
+pub fn kl_parts_grad<const A: usize>(
+    old: &Gaussian<A>,
+    new: &Gaussian<A>,
+    c_mean: f32,
+    c_cov: f32,
+    g: &mut GaussianGrad<A>,
+) -> KlParts {
+    kl_parts_impl(old, new, Some(g), c_mean, c_cov)
+}
+
+fn kl_parts_impl<const A: usize>(
+    old: &Gaussian<A>,
+    new: &Gaussian<A>,
+    g: Option<&mut GaussianGrad<A>>,
+    c_mean: f32,
+    c_cov: f32,
+) -> KlParts {
+    let mut d = [0f32; A];
+    for j in 0..A {
+        d[j] = new.mu[j] - old.mu[j];
+    }
+    let y = solve_lower(&new.l, &d);
+    let mut mean = 0.0;
+    for v in y {
+        mean += v * v;
+    }
+    mean *= 0.5;
+
+    // M = L^-1 L_old, lower triangular; each term of the sum below is >= 0, which keeps the
+    // tiny covariance KLs of the M-step (eps_Sigma ~ 1e-4) free of cancellation.
+    let m = lower_inv_times(&new.l, &old.l);
+    let mut cov = 0.0;
+    for j in 0..A {
+        let mjj = m[j][j];
+        cov += (mjj - 1.0) * (mjj + 1.0) - 2.0 * libm::logf(mjj);
+        for k in 0..j {
+            cov += m[j][k] * m[j][k];
+        }
+    }
+    cov *= 0.5;
+
+    if let Some(g) = g {
+        let u = solve_upper_t(&new.l, &y);
+        for j in 0..A {
+            g.mu[j] += c_mean * u[j];
+            for k in 0..=j {
+                g.l[j][k] -= c_mean * (u[j] * y[k]);
+            }
+        }
+        // N = M M^T (symmetric); P = L^-T N, column by column.
+        let mut n = [[0f32; A]; A];
+        for r in 0..A {
+            for c in 0..A {
+                let mut s = 0.0;
+                for k in 0..=r.min(c) {
+                    s += m[r][k] * m[c][k];
+                }
+                n[r][c] = s;
+            }
+        }
+        for c in 0..A {
+            let mut col = [0f32; A];
+            for r in 0..A {
+                col[r] = n[r][c];
+            }
+            let p = solve_upper_t(&new.l, &col);
+            for j in c..A {
+                g.l[j][c] -= c_cov * p[j];
+            }
+        }
+        for j in 0..A {
+            g.l[j][j] += c_cov / new.l[j][j];
+        }
+    }
+    KlParts { mean, cov }
+}
+
+/// Maps a gradient with respect to `(mu, L)` back to the raw head outputs.
+pub fn head_backward<const A: usize, const T: usize>(
+    chol_raw: &[f32; T],
+    g: &GaussianGrad<A>,
+    d_mean: &mut [f32; A],
+    d_chol: &mut [f32; T],
+) {
+    const { assert!(T == A * (A + 1) / 2, "T must be A(A+1)/2") };
+    *d_mean = g.mu;
+    for j in 0..A {
+        for k in 0..j {
+            d_chol[tri_index(j, k)] = g.l[j][k];
+        }
+        let t = tri_index(j, j);
+        d_chol[t] = g.l[j][j] * sigmoid(chol_raw[t]);
+    }
+}
+
+/// Solves `L x = b` for lower-triangular `L`.
+fn solve_lower<const A: usize>(l: &[[f32; A]; A], b: &[f32; A]) -> [f32; A] {
+    let mut x = [0f32; A];
+    for j in 0..A {
+        let mut v = b[j];
+        for k in 0..j {
+            v -= l[j][k] * x[k];
+        }
+        x[j] = v / l[j][j];
+    }
+    x
+}
+
+/// Solves `L^T x = b` for lower-triangular `L`.
+fn solve_upper_t<const A: usize>(l: &[[f32; A]; A], b: &[f32; A]) -> [f32; A] {
+    let mut x = [0f32; A];
+    for j in (0..A).rev() {
+        let mut v = b[j];
+        for k in j + 1..A {
+            v -= l[k][j] * x[k];
+        }
+        x[j] = v / l[j][j];
+    }
+    x
+}
+
+/// `L^-1 B` for lower-triangular `L` and `B` (the result is lower triangular).
+fn lower_inv_times<const A: usize>(l: &[[f32; A]; A], b: &[[f32; A]; A]) -> [[f32; A]; A] {
+    let mut m = [[0f32; A]; A];
+    for c in 0..A {
+        for j in c..A {
+            let mut v = b[j][c];
+            for k in c..j {
+                v -= l[j][k] * m[k][c];
+            }
+            m[j][c] = v / l[j][j];
+        }
+    }
+    m
+}

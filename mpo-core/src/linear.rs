@@ -1,0 +1,399 @@
+//! The fully connected layer and its hand-written kernels.
+//!
+//! Weights are stored input-major (`w[i][o]`), so every kernel is an axpy over outputs that the
+//! compiler vectorises without reassociating a sum. Every output is accumulated in the same
+//! order on every path (initial value, then inputs in ascending order), which is why a batch
+//! forward gives the same bits as a single-state forward, and why no target CPU changes a
+//! result (Rust never contracts `a * b + c` into an FMA).
+//!
+//! FLOPs: forward `2 B I O`; backward `2 B I O` for the weight gradient plus `2 B I O` for the
+//! input gradient when it is asked for.
+
+use bytemuck::Zeroable;
+
+use crate::params::Params;
+use crate::rng::Rng;
+
+/// Output tile width of the batch kernels (two AVX2 registers).
+const TILE_O: usize = 16;
+/// Samples per tile of the batch kernels.
+const TILE_N: usize = 4;
+/// Input rows per tile of the weight-gradient kernel.
+const TILE_I: usize = 4;
+/// Output chunk of the single-sample kernel: enough independent accumulators to hide latency.
+const CHUNK_1: usize = 32;
+
+/// A dense layer `y = b + x W` with `I` inputs and `O` outputs.
+#[derive(Clone, Zeroable)]
+#[repr(C)]
+pub struct Linear<const I: usize, const O: usize> {
+    /// Input-major weights: `w[i][o]` multiplies input `i` into output `o`.
+    pub w: [[f32; O]; I],
+    /// Bias.
+    pub b: [f32; O],
+}
+
+impl<const I: usize, const O: usize> Params for Linear<I, O> {
+    const TENSORS: usize = 2;
+    fn tensor(&self, k: usize) -> &[f32] {
+        match k {
+            0 => self.w.as_flattened(),
+            1 => &self.b,
+            _ => panic!("Linear has 2 tensors, asked for {k}"),
+        }
+    }
+    fn tensor_mut(&mut self, k: usize) -> &mut [f32] {
+        match k {
+            0 => self.w.as_flattened_mut(),
+            1 => &mut self.b,
+            _ => panic!("Linear has 2 tensors, asked for {k}"),
+        }
+    }
+}
+
+impl<const I: usize, const O: usize> Linear<I, O> {
+    /// Fills weights and biases uniformly in `[-1/sqrt(I), 1/sqrt(I)]` (the common default
+    /// for ReLU networks; keeps the first updates well scaled whatever the width).
+    pub fn init_uniform(&mut self, rng: &mut Rng) {
+        let bound = 1.0 / libm::sqrtf(I as f32);
+        for x in self.w.as_flattened_mut() {
+            *x = rng.uniform_range(-bound, bound);
+        }
+        for x in &mut self.b {
+            *x = rng.uniform_range(-bound, bound);
+        }
+    }
+
+    /// Scales the layer's initial weights and biases (a small output layer keeps the initial
+    /// policy close to its bias-free default).
+    pub fn scale_init(&mut self, c: f32) {
+        self.scale(c);
+    }
+
+    /// `y = b + x W` for every row of `x`.
+    pub fn forward(&self, x: &[[f32; I]], y: &mut [[f32; O]]) {
+        for row in y.iter_mut() {
+            *row = self.b;
+        }
+        accumulate(x, &self.w, y);
+    }
+
+    /// Weight and bias gradients of `sum_n dy[n] . y[n]`, written into `grad` (overwriting
+    /// it), and optionally the input gradient `dx = dy W^T`.
+    pub fn backward(
+        &self,
+        x: &[[f32; I]],
+        dy: &[[f32; O]],
+        grad: &mut Linear<I, O>,
+        dx: Option<&mut [[f32; I]]>,
+    ) {
+        weight_grad(x, dy, &mut grad.w);
+        bias_grad(dy, &mut grad.b);
+        if let Some(dx) = dx {
+            input_grad(&self.w, dy, dx);
+        }
+    }
+}
+
+/// `y[n] += x[n] W` for every row, each output summed in ascending input order.
+pub fn accumulate<const I: usize, const O: usize>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    y: &mut [[f32; O]],
+) {
+    assert_eq!(x.len(), y.len(), "accumulate: batch sizes differ");
+    let n_full = x.len() / TILE_N * TILE_N;
+    let (x_full, x_rest) = x.split_at(n_full);
+    let (y_full, y_rest) = y.split_at_mut(n_full);
+    for (xs, ys) in x_full
+        .chunks_exact(TILE_N)
+        .zip(y_full.chunks_exact_mut(TILE_N))
+    {
+        accumulate_tile(xs, w, ys);
+    }
+    for (xr, yr) in x_rest.iter().zip(y_rest) {
+        accumulate_one(xr, w, yr);
+    }
+}
+
+/// Four samples at a time: 4 x 16 accumulators stay in registers while the inputs stream.
+#[inline(always)]
+fn accumulate_tile<const I: usize, const O: usize>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    y: &mut [[f32; O]],
+) {
+    let o_full = O / TILE_O * TILE_O;
+    let mut o0 = 0;
+    while o0 < o_full {
+        let mut acc = [[0f32; TILE_O]; TILE_N];
+        for s in 0..TILE_N {
+            acc[s].copy_from_slice(&y[s][o0..o0 + TILE_O]);
+        }
+        for i in 0..I {
+            let wr: &[f32; TILE_O] = w[i][o0..o0 + TILE_O].try_into().unwrap();
+            for s in 0..TILE_N {
+                let xs = x[s][i];
+                for l in 0..TILE_O {
+                    acc[s][l] += xs * wr[l];
+                }
+            }
+        }
+        for s in 0..TILE_N {
+            y[s][o0..o0 + TILE_O].copy_from_slice(&acc[s]);
+        }
+        o0 += TILE_O;
+    }
+    if o_full < O {
+        for s in 0..TILE_N {
+            for i in 0..I {
+                let xs = x[s][i];
+                for o in o_full..O {
+                    y[s][o] += xs * w[i][o];
+                }
+            }
+        }
+    }
+}
+
+/// One sample: output chunks of 32 accumulators, inputs streaming.
+#[inline(always)]
+fn accumulate_one<const I: usize, const O: usize>(
+    x: &[f32; I],
+    w: &[[f32; O]; I],
+    y: &mut [f32; O],
+) {
+    let o_full = O / CHUNK_1 * CHUNK_1;
+    let mut o0 = 0;
+    while o0 < o_full {
+        let mut acc = [0f32; CHUNK_1];
+        acc.copy_from_slice(&y[o0..o0 + CHUNK_1]);
+        for i in 0..I {
+            let wr: &[f32; CHUNK_1] = w[i][o0..o0 + CHUNK_1].try_into().unwrap();
+            let xi = x[i];
+            for l in 0..CHUNK_1 {
+                acc[l] += xi * wr[l];
+            }
+        }
+        y[o0..o0 + CHUNK_1].copy_from_slice(&acc);
+        o0 += CHUNK_1;
+    }
+    if o_full < O {
+        for i in 0..I {
+            let xi = x[i];
+            for o in o_full..O {
+                y[o] += xi * w[i][o];
+            }
+        }
+    }
+}
+
+/// `gw[i][o] = sum_n x[n][i] dy[n][o]`, summed in ascending sample order.
+pub fn weight_grad<const I: usize, const O: usize>(
+    x: &[[f32; I]],
+    dy: &[[f32; O]],
+    gw: &mut [[f32; O]; I],
+) {
+    assert_eq!(x.len(), dy.len(), "weight_grad: batch sizes differ");
+    let o_full = O / TILE_O * TILE_O;
+    let i_full = I / TILE_I * TILE_I;
+    let mut i0 = 0;
+    while i0 < i_full {
+        let mut o0 = 0;
+        while o0 < o_full {
+            let mut acc = [[0f32; TILE_O]; TILE_I];
+            for (xn, dyn_) in x.iter().zip(dy) {
+                let d: &[f32; TILE_O] = dyn_[o0..o0 + TILE_O].try_into().unwrap();
+                for k in 0..TILE_I {
+                    let xk = xn[i0 + k];
+                    for l in 0..TILE_O {
+                        acc[k][l] += xk * d[l];
+                    }
+                }
+            }
+            for k in 0..TILE_I {
+                gw[i0 + k][o0..o0 + TILE_O].copy_from_slice(&acc[k]);
+            }
+            o0 += TILE_O;
+        }
+        i0 += TILE_I;
+    }
+    // Rows past the last full input tile, and columns past the last full output tile: the
+    // same per-element order (samples ascending), one row at a time.
+    for i in 0..I {
+        let o_start = if i < i_full { o_full } else { 0 };
+        if o_start == O {
+            continue;
+        }
+        let row = &mut gw[i][o_start..];
+        row.fill(0.0);
+        for (xn, dyn_) in x.iter().zip(dy) {
+            let xi = xn[i];
+            for (g, d) in row.iter_mut().zip(&dyn_[o_start..]) {
+                *g += xi * d;
+            }
+        }
+    }
+}
+
+/// `gb[o] = sum_n dy[n][o]`, in ascending sample order.
+pub fn bias_grad<const O: usize>(dy: &[[f32; O]], gb: &mut [f32; O]) {
+    gb.fill(0.0);
+    for d in dy {
+        for o in 0..O {
+            gb[o] += d[o];
+        }
+    }
+}
+
+/// `dx[n][i] = sum_o w[i][o] dy[n][o]` through [`dot`] (fixed lanes, fixed reduction tree).
+pub fn input_grad<const I: usize, const O: usize>(
+    w: &[[f32; O]; I],
+    dy: &[[f32; O]],
+    dx: &mut [[f32; I]],
+) {
+    assert_eq!(dx.len(), dy.len(), "input_grad: batch sizes differ");
+    let n_full = dy.len() / TILE_N * TILE_N;
+    let (dy_full, dy_rest) = dy.split_at(n_full);
+    let (dx_full, dx_rest) = dx.split_at_mut(n_full);
+    for (ds, xs) in dy_full
+        .chunks_exact(TILE_N)
+        .zip(dx_full.chunks_exact_mut(TILE_N))
+    {
+        for i in 0..I {
+            let v = dot_k(&w[i], [&ds[0], &ds[1], &ds[2], &ds[3]]);
+            for s in 0..TILE_N {
+                xs[s][i] = v[s];
+            }
+        }
+    }
+    for (d, x) in dy_rest.iter().zip(dx_rest) {
+        for i in 0..I {
+            x[i] = dot(&w[i], d);
+        }
+    }
+}
+
+/// Lanes of the dot product: element `o` goes to lane `o % LANES`.
+const LANES: usize = 16;
+
+/// Dot product with 16 lane accumulators and a fixed pairwise reduction: vectorises, and
+/// its bits do not depend on the target or on the batch path it is called from.
+#[inline(always)]
+pub fn dot<const N: usize>(a: &[f32; N], b: &[f32; N]) -> f32 {
+    dot_k(a, [b])[0]
+}
+
+/// `K` dot products sharing `a`, each with the lane structure of [`dot`].
+#[inline(always)]
+fn dot_k<const K: usize, const N: usize>(a: &[f32; N], b: [&[f32; N]; K]) -> [f32; K] {
+    let full = N / LANES * LANES;
+    let mut acc = [[0f32; LANES]; K];
+    let mut o = 0;
+    while o < full {
+        let ar: &[f32; LANES] = a[o..o + LANES].try_into().unwrap();
+        for s in 0..K {
+            let br: &[f32; LANES] = b[s][o..o + LANES].try_into().unwrap();
+            for l in 0..LANES {
+                acc[s][l] += ar[l] * br[l];
+            }
+        }
+        o += LANES;
+    }
+    for k in full..N {
+        for s in 0..K {
+            acc[s][k - full] += a[k] * b[s][k];
+        }
+    }
+    let mut out = [0f32; K];
+    for s in 0..K {
+        out[s] = reduce_lanes(&acc[s]);
+    }
+    out
+}
+
+#[inline(always)]
+fn reduce_lanes(v: &[f32; LANES]) -> f32 {
+    let mut h = [0f32; LANES / 2];
+    for l in 0..LANES / 2 {
+        h[l] = v[l] + v[l + LANES / 2];
+    }
+    let q = [h[0] + h[4], h[1] + h[5], h[2] + h[6], h[3] + h[7]];
+    (q[0] + q[2]) + (q[1] + q[3])
+}
+
+/// `x = max(x, 0)` in place.
+pub fn relu<const N: usize>(x: &mut [[f32; N]]) {
+    for v in x.as_flattened_mut() {
+        *v = v.max(0.0);
+    }
+}
+
+/// Backpropagates through a ReLU given its output: `d *= (out > 0)`.
+pub fn relu_backward<const N: usize>(out: &[[f32; N]], d: &mut [[f32; N]]) {
+    for (g, &a) in d.as_flattened_mut().iter_mut().zip(out.as_flattened()) {
+        if a <= 0.0 {
+            *g = 0.0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn naive_forward<const I: usize, const O: usize>(l: &Linear<I, O>, x: &[f32; I]) -> [f64; O] {
+        let mut y = [0f64; O];
+        for o in 0..O {
+            y[o] = l.b[o] as f64;
+            for i in 0..I {
+                y[o] += x[i] as f64 * l.w[i][o] as f64;
+            }
+        }
+        y
+    }
+
+    fn layer<const I: usize, const O: usize>(seed: u64) -> Linear<I, O> {
+        let mut l = Linear::<I, O>::zeroed();
+        l.init_uniform(&mut Rng::seed_from_u64(seed));
+        l
+    }
+
+    #[test]
+    fn batch_forward_matches_naive_and_single_bits() {
+        // Sizes that exercise full tiles and every remainder path.
+        const I: usize = 19;
+        const O: usize = 37;
+        const B: usize = 7;
+        let l = layer::<I, O>(1);
+        let mut rng = Rng::seed_from_u64(2);
+        let mut x = [[0f32; I]; B];
+        rng.fill_normal(x.as_flattened_mut());
+        let mut y = [[0f32; O]; B];
+        l.forward(&x, &mut y);
+        for n in 0..B {
+            let r = naive_forward(&l, &x[n]);
+            let mut y1 = [[0f32; O]; 1];
+            l.forward(core::slice::from_ref(&x[n]), &mut y1);
+            for o in 0..O {
+                assert!((y[n][o] as f64 - r[o]).abs() < 1e-5, "n {n} o {o}");
+                assert_eq!(
+                    y[n][o].to_bits(),
+                    y1[0][o].to_bits(),
+                    "batch vs single n {n} o {o}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn dot_matches_naive() {
+        let mut rng = Rng::seed_from_u64(5);
+        let mut a = [0f32; 45];
+        let mut b = [0f32; 45];
+        rng.fill_normal(&mut a);
+        rng.fill_normal(&mut b);
+        let r: f64 = a.iter().zip(&b).map(|(x, y)| *x as f64 * *y as f64).sum();
+        assert!((dot(&a, &b) as f64 - r).abs() < 1e-5);
+    }
+}

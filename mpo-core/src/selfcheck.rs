@@ -1,0 +1,185 @@
+//! A fixed, small training workload whose result fingerprints the core's arithmetic.
+//!
+//! It exercises every numerical routine of the core (RNG draws, batch forward and backward of
+//! both networks, the Gaussian's sampling, log-density and KL gradients, gradient clipping,
+//! Adam) and returns an FNV-1a hash of the final parameters. The same seed must give the
+//! same hash in every build: std and `no_std`, debug and release, any target CPU. The
+//! freestanding test binary prints it, and the test suite compares.
+
+use bytemuck::Zeroable;
+
+use crate::actor::{Actor, ActorTape};
+use crate::adam::{AdamConfig, AdamState, adam_step};
+use crate::critic::{Critic, CriticTape};
+use crate::gaussian::{Gaussian, GaussianGrad, head_backward, kl_parts_grad};
+use crate::params::{Params, clip_global_norm, fingerprint};
+use crate::rng::Rng;
+
+const OBS: usize = 5;
+const ACT: usize = 2;
+const TRI: usize = 3;
+const H: usize = 16;
+const B: usize = 8;
+const FLOOR: f32 = 1e-3;
+
+type A = Actor<OBS, ACT, TRI, H, H>;
+type C = Critic<OBS, ACT, H, H>;
+
+/// All the state of the workload (about 40 KiB: fits on any stack it is meant for).
+#[derive(Zeroable)]
+pub struct SelfCheck {
+    actor: A,
+    actor_old: A,
+    actor_grad: A,
+    actor_m: A,
+    actor_v: A,
+    actor_opt: AdamStateZ,
+    critic: C,
+    critic_grad: C,
+    critic_m: C,
+    critic_v: C,
+    critic_opt: AdamStateZ,
+    actor_tape: ActorTape<B, H, H>,
+    critic_tape: CriticTape<B, H, H>,
+}
+
+/// [`AdamState`] in a zeroable wrapper (zero steps; powers restored on first use).
+#[derive(Zeroable, Clone, Copy)]
+struct AdamStateZ {
+    t: u64,
+    b1: f32,
+    b2: f32,
+}
+
+impl AdamStateZ {
+    fn get(&self) -> AdamState {
+        if self.t == 0 {
+            AdamState::default()
+        } else {
+            AdamState {
+                t: self.t,
+                beta1_pow: self.b1,
+                beta2_pow: self.b2,
+            }
+        }
+    }
+    fn set(&mut self, s: AdamState) {
+        *self = Self {
+            t: s.t,
+            b1: s.beta1_pow,
+            b2: s.beta2_pow,
+        };
+    }
+}
+
+impl SelfCheck {
+    /// Runs `steps` training steps from `seed` and returns the parameter fingerprint.
+    pub fn run(&mut self, seed: u64, steps: usize) -> u64 {
+        let mut rng = Rng::seed_from_u64(seed);
+        self.actor.init(&mut rng, 0.5, FLOOR);
+        self.critic.init(&mut rng);
+        self.actor_m.fill_zero();
+        self.actor_v.fill_zero();
+        self.critic_m.fill_zero();
+        self.critic_v.fill_zero();
+        self.actor_opt = AdamStateZ::zeroed();
+        self.critic_opt = AdamStateZ::zeroed();
+        let cfg = AdamConfig::with_lr(1e-2);
+        for _ in 0..steps {
+            self.step(&mut rng, &cfg);
+        }
+        fingerprint(&self.actor) ^ fingerprint(&self.critic).rotate_left(1)
+    }
+
+    fn step(&mut self, rng: &mut Rng, cfg: &AdamConfig) {
+        let mut obs = [[0f32; OBS]; B];
+        rng.fill_normal(obs.as_flattened_mut());
+        let mut mean = [[0f32; ACT]; B];
+        let mut chol = [[0f32; TRI]; B];
+        let mut d_mean = [[0f32; ACT]; B];
+        let mut d_chol = [[0f32; TRI]; B];
+        let mut actions = [[0f32; ACT]; B];
+        let mut reward = [0f32; B];
+        self.actor_old.copy_from(&self.actor);
+        self.actor
+            .forward(&obs, &mut self.actor_tape, &mut mean, &mut chol);
+        for n in 0..B {
+            let pi = Gaussian::from_head(&mean[n], &chol[n], FLOOR);
+            pi.sample(rng, &mut actions[n]);
+            // Supervised target: the action (tanh(s0), -s1/2), pushed to be likely, with a
+            // small KL penalty to a perturbed copy of the current policy.
+            let target = [libm::tanhf(obs[n][0]), -0.5 * obs[n][1]];
+            let mut g = GaussianGrad::ZERO;
+            pi.log_prob_grad(&target, -1.0 / B as f32, &mut g);
+            let mut old = pi;
+            old.mu[0] += 0.1;
+            kl_parts_grad(&old, &pi, 0.1, 0.1, &mut g);
+            head_backward(&chol[n], &g, &mut d_mean[n], &mut d_chol[n]);
+            reward[n] = -(actions[n][0] - target[0]).abs() - (actions[n][1] - target[1]).abs();
+        }
+        self.actor.backward(
+            &obs,
+            &mut self.actor_tape,
+            &d_mean,
+            &d_chol,
+            &mut self.actor_grad,
+        );
+        clip_global_norm(&mut self.actor_grad, 1.0);
+        let mut st = self.actor_opt.get();
+        adam_step(
+            cfg,
+            &mut st,
+            &mut self.actor,
+            &self.actor_grad,
+            &mut self.actor_m,
+            &mut self.actor_v,
+        );
+        self.actor_opt.set(st);
+
+        let mut q = [[0f32; 1]; B];
+        self.critic
+            .forward(&obs, &actions, &mut self.critic_tape, &mut q);
+        let mut dq = [[0f32; 1]; B];
+        for n in 0..B {
+            dq[n][0] = (q[n][0] - reward[n]) / B as f32;
+        }
+        self.critic.backward(
+            &obs,
+            &actions,
+            &mut self.critic_tape,
+            &dq,
+            &mut self.critic_grad,
+        );
+        clip_global_norm(&mut self.critic_grad, 1.0);
+        let mut st = self.critic_opt.get();
+        adam_step(
+            cfg,
+            &mut st,
+            &mut self.critic,
+            &self.critic_grad,
+            &mut self.critic_m,
+            &mut self.critic_v,
+        );
+        self.critic_opt.set(st);
+    }
+}
+
+/// The fingerprint of the policy's forward pass on a fixed input after `init` from `seed`:
+/// the firmware-sized check (inference only).
+pub fn forward_checksum(seed: u64) -> u64 {
+    let mut actor = A::zeroed();
+    let mut rng = Rng::seed_from_u64(seed);
+    actor.init(&mut rng, 0.5, FLOOR);
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for _ in 0..16 {
+        let mut obs = [0f32; OBS];
+        rng.fill_normal(&mut obs);
+        let mut m = [0f32; ACT];
+        let mut c = [0f32; TRI];
+        actor.forward_one(&obs, &mut m, &mut c);
+        for x in m.iter().chain(c.iter()) {
+            h = (h ^ x.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    h
+}

@@ -1,0 +1,224 @@
+//! Hand-written backward passes against central finite differences, for every parameter of
+//! both networks, at sizes that exercise every tile and remainder path of the kernels.
+
+use bytemuck::Zeroable;
+use mpo_core::actor::{Actor, ActorTape};
+use mpo_core::critic::{Critic, CriticTape};
+use mpo_core::linear::Linear;
+use mpo_core::params::Params;
+use mpo_core::rng::Rng;
+
+const OBS: usize = 5;
+const ACT: usize = 2;
+const TRI: usize = 3;
+const H1: usize = 20; // one 16-wide tile plus a remainder
+const H2: usize = 17;
+const B: usize = 6; // one 4-sample tile plus a remainder
+
+/// Relative error with a floor: gradients smaller than 1e-2 are compared absolutely (the f32
+/// rounding noise of a central difference with h = 1e-3 on objectives of size ~1 is ~1e-4).
+fn rel_err(a: f64, b: f64) -> f64 {
+    (a - b).abs() / (1e-2 + a.abs().max(b.abs()))
+}
+
+/// Fingerprint of which ReLU units are active: a central difference across a kink measures
+/// no derivative, so such parameters are skipped (and counted).
+fn relu_mask(acts: &[f32]) -> u64 {
+    acts.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, a| {
+        (h ^ (*a > 0.0) as u64).wrapping_mul(0x100_0000_01b3)
+    })
+}
+
+/// Checks `analytic` (flat, tensor order) against central differences of `f` (value and ReLU
+/// mask) for every parameter of `p`; returns the worst relative error. At most 2% of the
+/// parameters may be skipped for straddling a ReLU kink.
+fn check_all<P: Params>(
+    p: &mut P,
+    analytic: &P,
+    f: &mut dyn FnMut(&P) -> (f64, u64),
+    bound: f64,
+) -> f64 {
+    let h = 1e-3f32;
+    let mut worst = 0f64;
+    let mut skipped = 0;
+    let mask0 = f(p).1;
+    for k in 0..P::TENSORS {
+        for i in 0..p.tensor(k).len() {
+            let x0 = p.tensor(k)[i];
+            p.tensor_mut(k)[i] = x0 + h;
+            let (fp, mp) = f(p);
+            p.tensor_mut(k)[i] = x0 - h;
+            let (fm, mm) = f(p);
+            p.tensor_mut(k)[i] = x0;
+            if mp != mask0 || mm != mask0 {
+                skipped += 1;
+                continue;
+            }
+            let fd = (fp - fm) / (2.0 * h as f64);
+            let an = analytic.tensor(k)[i] as f64;
+            let e = rel_err(an, fd);
+            assert!(
+                e < bound,
+                "tensor {k} index {i}: analytic {an} finite difference {fd}"
+            );
+            worst = worst.max(e);
+        }
+    }
+    assert!(
+        skipped * 50 <= p.len(),
+        "{skipped} of {} parameters straddle a ReLU kink",
+        p.len()
+    );
+    worst
+}
+
+#[test]
+fn linear_layer_weight_bias_and_input_gradients() {
+    const I: usize = 9;
+    const O: usize = 21;
+    let mut rng = Rng::seed_from_u64(1);
+    let mut l = Linear::<I, O>::zeroed();
+    l.init_uniform(&mut rng);
+    let mut x = [[0f32; I]; B];
+    let mut c = [[0f32; O]; B];
+    rng.fill_normal(x.as_flattened_mut());
+    rng.fill_normal(c.as_flattened_mut());
+    // f = sum_n c[n] . y[n]; its gradient with respect to y is c.
+    let f = |l: &Linear<I, O>, x: &[[f32; I]; B]| -> f64 {
+        let mut y = [[0f32; O]; B];
+        l.forward(x, &mut y);
+        y.as_flattened()
+            .iter()
+            .zip(c.as_flattened())
+            .map(|(a, b)| *a as f64 * *b as f64)
+            .sum()
+    };
+    let mut g = Linear::<I, O>::zeroed();
+    let mut dx = [[0f32; I]; B];
+    l.backward(&x, &c, &mut g, Some(&mut dx));
+    let worst = check_all(&mut l.clone(), &g, &mut |p| (f(p, &x), 0), 1e-2);
+    // Input gradient.
+    let h = 1e-3f32;
+    for n in 0..B {
+        for i in 0..I {
+            let (mut xp, mut xm) = (x, x);
+            xp[n][i] += h;
+            xm[n][i] -= h;
+            let fd = (f(&l, &xp) - f(&l, &xm)) / (2.0 * h as f64);
+            assert!(
+                rel_err(dx[n][i] as f64, fd) < 1e-2,
+                "dx[{n}][{i}]: {} vs {fd}",
+                dx[n][i]
+            );
+        }
+    }
+    eprintln!("linear: worst relative error {worst:.2e}");
+}
+
+#[test]
+fn actor_gradients_for_every_parameter() {
+    type Net = Actor<OBS, ACT, TRI, H1, H2>;
+    let mut rng = Rng::seed_from_u64(2);
+    let mut net = Net::zeroed();
+    net.init(&mut rng, 0.7, 1e-3);
+    // Undo the head down-scaling so every parameter has a sizeable effect.
+    net.mean.init_uniform(&mut rng);
+    net.chol.init_uniform(&mut rng);
+    let mut obs = [[0f32; OBS]; B];
+    rng.fill_normal(obs.as_flattened_mut());
+    let mut cm = [[0f32; ACT]; B];
+    let mut cc = [[0f32; TRI]; B];
+    rng.fill_normal(cm.as_flattened_mut());
+    rng.fill_normal(cc.as_flattened_mut());
+    let mut tape: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let f = |net: &Net, tape: &mut ActorTape<B, H1, H2>| -> (f64, u64) {
+        let mut m = [[0f32; ACT]; B];
+        let mut c = [[0f32; TRI]; B];
+        net.forward(&obs, tape, &mut m, &mut c);
+        let a: f64 = m
+            .as_flattened()
+            .iter()
+            .zip(cm.as_flattened())
+            .map(|(x, y)| *x as f64 * *y as f64)
+            .sum();
+        let b: f64 = c
+            .as_flattened()
+            .iter()
+            .zip(cc.as_flattened())
+            .map(|(x, y)| *x as f64 * *y as f64)
+            .sum();
+        (
+            a + b,
+            relu_mask(tape.h1.as_flattened()) ^ relu_mask(tape.h2.as_flattened()).rotate_left(1),
+        )
+    };
+    f(&net, &mut tape);
+    let mut grad = Net::zeroed();
+    net.backward(&obs, &mut tape, &cm, &cc, &mut grad);
+    let mut tape2: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let worst = check_all(&mut net.clone(), &grad, &mut |p| f(p, &mut tape2), 1e-2);
+    eprintln!(
+        "actor: {} parameters, worst relative error {worst:.2e}",
+        net.len()
+    );
+}
+
+#[test]
+fn critic_gradients_for_every_parameter() {
+    type Net = Critic<OBS, ACT, H1, H2>;
+    let mut rng = Rng::seed_from_u64(3);
+    let mut net = Net::zeroed();
+    net.init(&mut rng);
+    let mut obs = [[0f32; OBS]; B];
+    let mut act = [[0f32; ACT]; B];
+    let mut cq = [[0f32; 1]; B];
+    rng.fill_normal(obs.as_flattened_mut());
+    rng.fill_normal(act.as_flattened_mut());
+    rng.fill_normal(cq.as_flattened_mut());
+    let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let f = |net: &Net, tape: &mut CriticTape<B, H1, H2>| -> (f64, u64) {
+        let mut q = [[0f32; 1]; B];
+        net.forward(&obs, &act, tape, &mut q);
+        let v = (0..B).map(|n| q[n][0] as f64 * cq[n][0] as f64).sum();
+        (
+            v,
+            relu_mask(tape.h1.as_flattened()) ^ relu_mask(tape.h2.as_flattened()).rotate_left(1),
+        )
+    };
+    f(&net, &mut tape);
+    let mut grad = Net::zeroed();
+    net.backward(&obs, &act, &mut tape, &cq, &mut grad);
+    let mut tape2: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let worst = check_all(&mut net.clone(), &grad, &mut |p| f(p, &mut tape2), 1e-2);
+    eprintln!(
+        "critic: {} parameters, worst relative error {worst:.2e}",
+        net.len()
+    );
+    // The split first layer is one layer on the concatenation: q_one agrees with the batch.
+    let mut q = [[0f32; 1]; B];
+    net.forward(&obs, &act, &mut tape, &mut q);
+    for n in 0..B {
+        assert_eq!(net.q_one(&obs[n], &act[n]).to_bits(), q[n][0].to_bits());
+    }
+}
+
+#[test]
+fn actor_single_state_forward_equals_batch_bits() {
+    type Net = Actor<OBS, ACT, TRI, H1, H2>;
+    let mut rng = Rng::seed_from_u64(4);
+    let mut net = Net::zeroed();
+    net.init(&mut rng, 0.5, 1e-3);
+    let mut obs = [[0f32; OBS]; B];
+    rng.fill_normal(obs.as_flattened_mut());
+    let mut tape: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let mut m = [[0f32; ACT]; B];
+    let mut c = [[0f32; TRI]; B];
+    net.forward(&obs, &mut tape, &mut m, &mut c);
+    for n in 0..B {
+        let mut m1 = [0f32; ACT];
+        let mut c1 = [0f32; TRI];
+        net.forward_one(&obs[n], &mut m1, &mut c1);
+        assert_eq!(m1.map(f32::to_bits), m[n].map(f32::to_bits));
+        assert_eq!(c1.map(f32::to_bits), c[n].map(f32::to_bits));
+    }
+}
