@@ -1,0 +1,47 @@
+//! The errors of the sim-bridge crate, each worded so that the user knows what to do next.
+
+use std::path::PathBuf;
+
+/// The command that fetches MuJoCo and the Control Suite models.
+pub const SETUP_COMMAND: &str = "scripts/setup-mujoco";
+
+/// Everything that can go wrong when making or stepping an environment.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("unknown task '{task}'; valid tasks: {}", crate::TASKS.join(", "))]
+    UnknownTask { task: String },
+
+    #[error(
+        "the Control Suite model files are missing: {} not found; run `{SETUP_COMMAND}` from the \
+         repository root (or point {} at a directory holding dm_control's suite/*.xml)",
+        path.display(),
+        crate::assets::SUITE_DIR_VAR
+    )]
+    MissingAssets { path: PathBuf },
+
+    #[error(
+        "the MuJoCo library (libmujoco.so.3.17.0) cannot be loaded: {detail}; run \
+         `{SETUP_COMMAND}` from the repository root, or set LD_LIBRARY_PATH to the directory that \
+         holds libmujoco.so.3.17.0 (for example <repository>/.deps/mujoco)"
+    )]
+    MissingLibrary { detail: String },
+
+    #[error("MuJoCo could not load {}: {message}", path.display())]
+    ModelLoad { path: PathBuf, message: String },
+
+    #[error("{task}: the model does not match dm_control 1.0.50's ({detail})")]
+    ModelMismatch { task: &'static str, detail: String },
+
+    #[error("action has {got} values, but {task} takes {expected}")]
+    ActionWidth {
+        task: &'static str,
+        expected: usize,
+        got: usize,
+    },
+
+    #[error("action element {index} is {value}, which is not finite")]
+    NonFiniteAction { index: usize, value: f64 },
+
+    #[error("the episode is over (it lasts {steps} steps); call reset() before stepping again")]
+    EpisodeOver { steps: usize },
+}

@@ -1,0 +1,117 @@
+//! MuJoCo and the DeepMind Control Suite tasks, reproduced exactly.
+//!
+//! Ten Control Suite tasks run on the real MuJoCo 3.17.0 through `mujoco-rs`, stepped with
+//! dm_control 1.0.50's call sequence, seeded with numpy's legacy `RandomState` stream, so that a
+//! seed and an action sequence give the same physics states as `suite.load(domain, task,
+//! task_kwargs={'random': seed})` bit for bit (proved by `tests/dm_control_replay.rs`).
+//!
+//! The trainer uses [`make`] and the [`Environment`] trait in-process; after construction no call
+//! allocates. The `sim-bridge` binary replays action files for cross-checks.
+
+pub mod assets;
+pub mod cli;
+mod env;
+mod error;
+pub mod launcher;
+mod logging;
+pub mod numpy_rng;
+pub mod physics;
+pub mod rewards;
+mod tasks;
+
+pub use env::SuiteEnv;
+pub use error::{SETUP_COMMAND, SimError};
+
+/// The fixed shape of a task.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaskSpec {
+    /// `<domain>-<task>`, e.g. `cartpole-swingup`.
+    pub name: &'static str,
+    /// Length of the flattened observation (all of dm_control's observation arrays, in order).
+    pub obs_dim: usize,
+    /// Number of actuators.
+    pub act_dim: usize,
+    /// Seconds of simulated time per control step.
+    pub control_timestep: f64,
+    /// Control steps per episode (the time limit; there is no early termination).
+    pub episode_steps: usize,
+}
+
+/// The outcome of one control step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    pub reward: f64,
+    /// Always 1.0: Control Suite tasks never terminate, and the time limit is not a terminal state.
+    pub discount: f64,
+    /// True on the episode's last step (the time limit); `reset` must come next.
+    pub last: bool,
+}
+
+/// A Control Suite task as the trainer sees it.
+pub trait Environment: Send {
+    fn spec(&self) -> &TaskSpec;
+    /// Starts an episode; draws the initial state from the environment's RandomState stream
+    /// (seeded at construction, dm_control semantics: successive resets continue the stream).
+    /// Writes the flattened observation.
+    fn reset(&mut self, obs: &mut [f64]);
+    /// Applies one action (not clipped, as dm_control), advances one control step, writes the
+    /// observation.
+    ///
+    /// # Panics
+    /// On a wrong action width, a non-finite action, or a step outside an episode (before the
+    /// first `reset` or after the `last` step): the same conditions [`Environment::try_step`]
+    /// reports as errors.
+    fn step(&mut self, action: &[f64], obs: &mut [f64]) -> Step;
+    fn qpos(&self) -> &[f64];
+    fn qvel(&self) -> &[f64];
+    /// [`Environment::step`] that reports bad input as an error instead of panicking.
+    fn try_step(&mut self, action: &[f64], obs: &mut [f64]) -> Result<Step, SimError>;
+}
+
+/// The task names, `<domain>-<task>`.
+pub const TASKS: &[&str] = &[
+    "cartpole-balance",
+    "cartpole-swingup",
+    "hopper-stand",
+    "hopper-hop",
+    "acrobot-swingup",
+    "pendulum-swingup",
+    "walker-stand",
+    "walker-walk",
+    "walker-run",
+    "cheetah-run",
+];
+
+/// Loads the task's model and seeds its `RandomState` with `seed`.
+pub fn make(task: &str, seed: u32) -> Result<Box<dyn Environment>, SimError> {
+    Ok(Box::new(SuiteEnv::new(task, seed)?))
+}
+
+/// The task's shape, without loading MuJoCo.
+pub fn task_spec(task: &str) -> Result<TaskSpec, SimError> {
+    Ok(tasks::entry(task)?.spec())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tasks_and_table_agree() {
+        for (name, entry) in TASKS.iter().zip(tasks::ENTRIES.iter()) {
+            assert_eq!(*name, entry.name);
+            let spec = task_spec(name).unwrap();
+            assert_eq!(spec.episode_steps, 1000, "{name}");
+        }
+        assert_eq!(TASKS.len(), tasks::ENTRIES.len());
+    }
+
+    #[test]
+    fn unknown_task_lists_the_valid_ones() {
+        let message = task_spec("cartpole-juggle").unwrap_err().to_string();
+        assert!(message.contains("cartpole-juggle"), "{message}");
+        for name in TASKS {
+            assert!(message.contains(name), "{message}");
+        }
+    }
+}

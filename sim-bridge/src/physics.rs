@@ -1,0 +1,159 @@
+//! One MuJoCo model + data, stepped with dm_control's call sequence.
+//!
+//! Bit-identical states need the same sequence of MuJoCo calls as dm_control's
+//! `mujoco.Physics` (`dm_control/mujoco/engine.py`), not just the same model:
+//! - construction and `reset` run `mj_forward` with actuation disabled (no meaningful controls
+//!   yet), after `mj_resetData` for a reset;
+//! - a control step is the "legacy step": with the Euler integrator `mj_step2` (finishing the
+//!   `mj_step1` of the previous step), `mj_step` x (n - 1), then `mj_step1`; with RK4
+//!   `mj_step` x n, then `mj_step1`. Position- and velocity-dependent fields are therefore current
+//!   after a step, while acceleration-stage sensors (hopper's touch) lag one substep, exactly as in
+//!   dm_control.
+
+use mujoco_rs::mujoco_c::{mjtDisableBit, mjtIntegrator};
+use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
+
+use crate::assets;
+use crate::error::SimError;
+
+/// A loaded Control Suite model and its simulation state.
+pub struct Physics {
+    data: MjData<Box<MjModel>>,
+    rk4: bool,
+}
+
+impl std::fmt::Debug for Physics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Physics")
+            .field("rk4", &self.rk4)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Physics {
+    /// Loads `<domain>.xml` from the suite directory and, like dm_control's constructor, runs a
+    /// forward pass with actuation disabled.
+    pub fn load(domain: &str) -> Result<Self, SimError> {
+        let model = Box::new(assets::load_model(domain)?);
+        let data = MjData::new(model);
+        let rk4 = data.model_opt().integrator == mjtIntegrator::mjINT_RK4 as i32;
+        let mut physics = Self { data, rk4 };
+        physics.forward_without_actuation();
+        Ok(physics)
+    }
+
+    pub fn model(&self) -> &MjModel {
+        self.data.model()
+    }
+
+    pub fn data(&self) -> &MjData<Box<MjModel>> {
+        &self.data
+    }
+
+    /// `mj_forward` with the actuation flag disabled (`with model.disable('actuation')`).
+    pub fn forward_without_actuation(&mut self) {
+        let opt = self.data.model_opt_mut();
+        let saved = opt.disableflags;
+        opt.disableflags = saved | mjtDisableBit::mjDSBL_ACTUATION as i32;
+        self.data.forward();
+        self.data.model_opt_mut().disableflags = saved;
+    }
+
+    /// dm_control's `Physics.reset()`: `mj_resetData`, then a forward pass without actuation.
+    pub fn reset(&mut self) {
+        self.data.reset();
+        self.forward_without_actuation();
+    }
+
+    /// dm_control's legacy `Physics.step(n)` (see the module documentation).
+    pub fn step(&mut self, n_sub_steps: usize) {
+        if self.rk4 {
+            for _ in 0..n_sub_steps {
+                self.data.step();
+            }
+        } else {
+            self.data.step2();
+            for _ in 1..n_sub_steps {
+                self.data.step();
+            }
+        }
+        self.data.step1();
+    }
+
+    /// Plain `mj_step` x n: the baseline the benchmark compares the legacy step against.
+    pub fn raw_step(&mut self, n_sub_steps: usize) {
+        for _ in 0..n_sub_steps {
+            self.data.step();
+        }
+    }
+
+    pub fn timestep(&self) -> f64 {
+        self.data.model_opt().timestep
+    }
+
+    pub fn qpos(&self) -> &[f64] {
+        self.data.qpos()
+    }
+
+    pub fn qpos_mut(&mut self) -> &mut [f64] {
+        self.data.qpos_mut()
+    }
+
+    pub fn qvel(&self) -> &[f64] {
+        self.data.qvel()
+    }
+
+    pub fn qvel_mut(&mut self) -> &mut [f64] {
+        self.data.qvel_mut()
+    }
+
+    pub fn ctrl(&self) -> &[f64] {
+        self.data.ctrl()
+    }
+
+    pub fn ctrl_mut(&mut self) -> &mut [f64] {
+        self.data.ctrl_mut()
+    }
+
+    pub fn set_time(&mut self, time: f64) {
+        // SAFETY: `time` is a plain number that no MuJoCo invariant depends on.
+        unsafe { self.data.ffi_mut().time = time };
+    }
+
+    /// Body orientation, row-major 3x3 (`xmat[body]`: `xx xy xz yx yy yz zx zy zz`).
+    pub fn xmat(&self, body: usize) -> &[f64; 9] {
+        &self.data.xmat()[body]
+    }
+
+    pub fn xpos(&self, body: usize) -> &[f64; 3] {
+        &self.data.xpos()[body]
+    }
+
+    pub fn xipos(&self, body: usize) -> &[f64; 3] {
+        &self.data.xipos()[body]
+    }
+
+    pub fn site_xpos(&self, site: usize) -> &[f64; 3] {
+        &self.data.site_xpos()[site]
+    }
+
+    pub fn sensordata(&self) -> &[f64] {
+        self.data.sensordata()
+    }
+
+    /// The id of a named object, or an error saying the model is not the expected one.
+    pub fn id(&self, task: &'static str, kind: MjtObjBase, name: &str) -> Result<usize, SimError> {
+        self.model()
+            .name_to_id(kind, name)
+            .ok_or_else(|| SimError::ModelMismatch {
+                task,
+                detail: format!("no {kind:?} named '{name}'"),
+            })
+    }
+
+    /// The first `sensordata` index of a named sensor.
+    pub fn sensor_adr(&self, task: &'static str, name: &str) -> Result<usize, SimError> {
+        let id = self.id(task, MjtObjBase::mjOBJ_SENSOR, name)?;
+        Ok(self.model().sensor_adr()[id] as usize)
+    }
+}
