@@ -2,7 +2,7 @@
 
 use crate::error::SimError;
 use crate::numpy_rng::RandomState;
-use crate::physics::Physics;
+use crate::physics::{Physics, Sync};
 use crate::tasks::{self, Task};
 use crate::{Environment, Step, TaskSpec};
 
@@ -13,6 +13,8 @@ pub struct SuiteEnv {
     task: Box<dyn Task>,
     random: RandomState,
     n_sub_steps: usize,
+    /// How much state the task needs refreshed after each step.
+    sync: Sync,
     /// Control steps taken in the current episode; `None` outside an episode.
     step_count: Option<usize>,
 }
@@ -48,7 +50,9 @@ impl SuiteEnv {
             ));
         }
         let task_logic = entry.build(&physics)?;
+        let sync = task_logic.sync();
         Ok(Self {
+            sync,
             spec: entry.spec(),
             physics,
             task: task_logic,
@@ -71,6 +75,11 @@ impl SuiteEnv {
     /// `n_sub_steps`: physics steps per control step.
     pub fn n_sub_steps(&self) -> usize {
         self.n_sub_steps
+    }
+
+    /// The [`Sync`] the task steps with.
+    pub fn sync(&self) -> Sync {
+        self.sync
     }
 
     /// The reward of the current state (dm_control's `task.get_reward(physics)`).
@@ -126,7 +135,7 @@ impl Environment for SuiteEnv {
         self.check(action, obs)?;
         // `task.before_step` (set_control: copied as given, unclipped), `physics.step`.
         self.physics.ctrl_mut().copy_from_slice(action);
-        self.physics.step(self.n_sub_steps);
+        self.physics.step_synced(self.n_sub_steps, self.sync);
         let reward = self.task.reward(&self.physics);
         self.task.observe(&self.physics, obs);
         let count = self.step_count.map_or(1, |n| n + 1);

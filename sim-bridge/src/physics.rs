@@ -16,6 +16,19 @@ use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
 use crate::assets;
 use crate::error::SimError;
 
+/// How much of `mjData` a control step brings up to date for the new state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sync {
+    /// dm_control's final `mj_step1`: every position- and velocity-dependent field.
+    Full,
+    /// Only `mj_kinematics` (body and site poses) after an RK4 step. The next RK4 `mj_step` starts
+    /// with a full `mj_forward`, so the state trajectory is unchanged; tasks whose observation and
+    /// reward read only poses, `qpos`, `qvel` and `ctrl` (cartpole, acrobot) skip the rest of the
+    /// `mj_step1` work. With the Euler integrator the full `mj_step1` is always run: the next
+    /// `mj_step2` builds on it.
+    Kinematics,
+}
+
 /// A loaded Control Suite model and its simulation state.
 pub struct Physics {
     data: MjData<Box<MjModel>>,
@@ -67,17 +80,26 @@ impl Physics {
 
     /// dm_control's legacy `Physics.step(n)` (see the module documentation).
     pub fn step(&mut self, n_sub_steps: usize) {
+        self.step_synced(n_sub_steps, Sync::Full);
+    }
+
+    /// The legacy step, ending with the given [`Sync`] instead of always `mj_step1`.
+    pub fn step_synced(&mut self, n_sub_steps: usize, sync: Sync) {
         if self.rk4 {
             for _ in 0..n_sub_steps {
                 self.data.step();
+            }
+            match sync {
+                Sync::Full => self.data.step1(),
+                Sync::Kinematics => self.data.kinematics(),
             }
         } else {
             self.data.step2();
             for _ in 1..n_sub_steps {
                 self.data.step();
             }
+            self.data.step1();
         }
-        self.data.step1();
     }
 
     /// Plain `mj_step` x n: the baseline the benchmark compares the legacy step against.

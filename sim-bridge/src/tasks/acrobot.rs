@@ -5,7 +5,7 @@ use mujoco_rs::prelude::MjtObjBase;
 use super::Task;
 use crate::error::SimError;
 use crate::numpy_rng::RandomState;
-use crate::physics::Physics;
+use crate::physics::{Physics, Sync};
 use crate::rewards::tolerance;
 
 const ZZ: usize = 8;
@@ -66,6 +66,11 @@ impl Task for Balance {
         obs[2] = upper[ZZ];
         obs[3] = lower[ZZ];
         obs[4..6].copy_from_slice(physics.qvel());
+    }
+
+    /// Observation and reward read only qvel, body poses and site positions (RK4 model).
+    fn sync(&self) -> Sync {
+        Sync::Kinematics
     }
 
     fn reward(&self, physics: &Physics) -> f64 {

@@ -6,7 +6,7 @@ use mujoco_rs::prelude::MjtObjBase;
 use super::{Task, small_control};
 use crate::error::SimError;
 use crate::numpy_rng::RandomState;
-use crate::physics::Physics;
+use crate::physics::{Physics, Sync};
 use crate::rewards::tolerance;
 
 /// Row-major `xmat` indices of the `zz` and `xz` entries.
@@ -80,6 +80,11 @@ impl Task for Balance {
         obs[1] = xmat[ZZ];
         obs[2] = xmat[XZ];
         obs[3..5].copy_from_slice(physics.qvel());
+    }
+
+    /// Observation and reward read only qpos, qvel, ctrl and the pole pose (RK4 model).
+    fn sync(&self) -> Sync {
+        Sync::Kinematics
     }
 
     fn reward(&self, physics: &Physics) -> f64 {

@@ -12,7 +12,7 @@ mod walker;
 use crate::TaskSpec;
 use crate::error::SimError;
 use crate::numpy_rng::RandomState;
-use crate::physics::Physics;
+use crate::physics::{Physics, Sync};
 
 /// What a Control Suite task adds to the physics: `base.Task` minus the action plumbing.
 pub(crate) trait Task: Send {
@@ -24,6 +24,10 @@ pub(crate) trait Task: Send {
     fn observe(&self, physics: &Physics, obs: &mut [f64]);
     /// `get_reward`.
     fn reward(&self, physics: &Physics) -> f64;
+    /// What `observe` and `reward` need to be current after a control step (see [`Sync`]).
+    fn sync(&self) -> Sync {
+        Sync::Full
+    }
 }
 
 /// The fixed facts of one task; `task_spec` derives the public [`TaskSpec`] from them without
