@@ -103,8 +103,13 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
             *a += *b;
         }
         crate::linear::relu_backward(&tape.h2, &mut tape.d_h2);
-        self.l2
-            .backward(&tape.h1, &tape.d_h2, &mut grad.l2, Some(&mut tape.d_h1));
+        self.l2.backward_wide(
+            &tape.h1,
+            &tape.d_h2,
+            &mut grad.l2,
+            &mut tape.d_h1,
+            &mut tape.w2t,
+        );
         crate::linear::relu_backward(&tape.h1, &mut tape.d_h1);
         self.l1.backward(obs, &tape.d_h1, &mut grad.l1, None);
     }
@@ -159,4 +164,6 @@ pub struct ActorTape<const B: usize, const H1: usize, const H2: usize> {
     pub d_h2b: [[f32; H2]; B],
     /// Gradient at the first hidden layer.
     pub d_h1: [[f32; H1]; B],
+    /// Transposed second-layer weights (scratch of the input gradient).
+    pub w2t: [[f32; H1]; H2],
 }

@@ -8,6 +8,9 @@
 //!
 //! FLOPs: forward `2 B I O`; backward `2 B I O` for the weight gradient plus `2 B I O` for the
 //! input gradient when it is asked for.
+//!
+//! Kernels: [`accumulate`] (forward, and input gradients through transposed weights) keeps a
+//! 4-sample x 16-output tile in registers; [`weight_grad`] a 4-input x 16-output tile.
 
 use bytemuck::Zeroable;
 
@@ -20,8 +23,9 @@ const TILE_O: usize = 16;
 const TILE_N: usize = 4;
 /// Input rows per tile of the weight-gradient kernel.
 const TILE_I: usize = 4;
-/// Output chunk of the single-sample kernel: enough independent accumulators to hide latency.
-const CHUNK_1: usize = 32;
+/// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
+/// enough to hide the add latency.
+const CHUNK_1: usize = 64;
 
 /// A dense layer `y = b + x W` with `I` inputs and `O` outputs.
 #[derive(Clone, Zeroable)]
@@ -76,6 +80,26 @@ impl<const I: usize, const O: usize> Linear<I, O> {
             *row = self.b;
         }
         accumulate(x, &self.w, y);
+    }
+
+    /// As [`Self::backward`] with the input gradient computed through a transposed copy of
+    /// the weights in `wt` (scratch): the fast path for wide layers, where it turns the input
+    /// gradient into the same register-tiled kernel as the forward pass.
+    pub fn backward_wide(
+        &self,
+        x: &[[f32; I]],
+        dy: &[[f32; O]],
+        grad: &mut Linear<I, O>,
+        dx: &mut [[f32; I]],
+        wt: &mut [[f32; I]; O],
+    ) {
+        weight_grad(x, dy, &mut grad.w);
+        bias_grad(dy, &mut grad.b);
+        transpose(&self.w, wt);
+        for row in dx.iter_mut() {
+            row.fill(0.0);
+        }
+        accumulate(dy, wt, dx);
     }
 
     /// Weight and bias gradients of `sum_n dy[n] . y[n]`, written into `grad` (overwriting
@@ -219,20 +243,42 @@ pub fn weight_grad<const I: usize, const O: usize>(
         i0 += TILE_I;
     }
     // Rows past the last full input tile, and columns past the last full output tile: the
-    // same per-element order (samples ascending), one row at a time.
+    // same per-element order (samples ascending), samples in the outer loop so each input row
+    // is read once and the small block of gradients stays in L1.
+    let rest = |i: usize| if i < i_full { o_full } else { 0 };
     for i in 0..I {
-        let o_start = if i < i_full { o_full } else { 0 };
-        if o_start == O {
-            continue;
-        }
-        let row = &mut gw[i][o_start..];
-        row.fill(0.0);
+        gw[i][rest(i)..].fill(0.0);
+    }
+    if o_full < O || i_full < I {
         for (xn, dyn_) in x.iter().zip(dy) {
-            let xi = xn[i];
-            for (g, d) in row.iter_mut().zip(&dyn_[o_start..]) {
-                *g += xi * d;
+            for i in 0..I {
+                let xi = xn[i];
+                let o_start = rest(i);
+                for (g, d) in gw[i][o_start..].iter_mut().zip(&dyn_[o_start..]) {
+                    *g += xi * d;
+                }
             }
         }
+    }
+}
+
+/// `wt = w^T`, in 8 x 8 blocks so both sides stay in cache.
+pub fn transpose<const I: usize, const O: usize>(w: &[[f32; O]; I], wt: &mut [[f32; I]; O]) {
+    const BLK: usize = 8;
+    let mut i0 = 0;
+    while i0 < I {
+        let i1 = (i0 + BLK).min(I);
+        let mut o0 = 0;
+        while o0 < O {
+            let o1 = (o0 + BLK).min(O);
+            for i in i0..i1 {
+                for o in o0..o1 {
+                    wt[o][i] = w[i][o];
+                }
+            }
+            o0 = o1;
+        }
+        i0 = i1;
     }
 }
 
@@ -246,80 +292,24 @@ pub fn bias_grad<const O: usize>(dy: &[[f32; O]], gb: &mut [f32; O]) {
     }
 }
 
-/// `dx[n][i] = sum_o w[i][o] dy[n][o]` through [`dot`] (fixed lanes, fixed reduction tree).
+/// `dx[n][i] = sum_o w[i][o] dy[n][o]`, one accumulator per element in ascending `o`: the
+/// path for narrow layers (the heads). Wide layers use [`Linear::backward_wide`], which turns
+/// this product into the register-tiled forward kernel on transposed weights.
 pub fn input_grad<const I: usize, const O: usize>(
     w: &[[f32; O]; I],
     dy: &[[f32; O]],
     dx: &mut [[f32; I]],
 ) {
     assert_eq!(dx.len(), dy.len(), "input_grad: batch sizes differ");
-    let n_full = dy.len() / TILE_N * TILE_N;
-    let (dy_full, dy_rest) = dy.split_at(n_full);
-    let (dx_full, dx_rest) = dx.split_at_mut(n_full);
-    for (ds, xs) in dy_full
-        .chunks_exact(TILE_N)
-        .zip(dx_full.chunks_exact_mut(TILE_N))
-    {
+    for (d, x) in dy.iter().zip(dx.iter_mut()) {
         for i in 0..I {
-            let v = dot_k(&w[i], [&ds[0], &ds[1], &ds[2], &ds[3]]);
-            for s in 0..TILE_N {
-                xs[s][i] = v[s];
+            let mut v = 0.0;
+            for o in 0..O {
+                v += w[i][o] * d[o];
             }
+            x[i] = v;
         }
     }
-    for (d, x) in dy_rest.iter().zip(dx_rest) {
-        for i in 0..I {
-            x[i] = dot(&w[i], d);
-        }
-    }
-}
-
-/// Lanes of the dot product: element `o` goes to lane `o % LANES`.
-const LANES: usize = 16;
-
-/// Dot product with 16 lane accumulators and a fixed pairwise reduction: vectorises, and
-/// its bits do not depend on the target or on the batch path it is called from.
-#[inline(always)]
-pub fn dot<const N: usize>(a: &[f32; N], b: &[f32; N]) -> f32 {
-    dot_k(a, [b])[0]
-}
-
-/// `K` dot products sharing `a`, each with the lane structure of [`dot`].
-#[inline(always)]
-fn dot_k<const K: usize, const N: usize>(a: &[f32; N], b: [&[f32; N]; K]) -> [f32; K] {
-    let full = N / LANES * LANES;
-    let mut acc = [[0f32; LANES]; K];
-    let mut o = 0;
-    while o < full {
-        let ar: &[f32; LANES] = a[o..o + LANES].try_into().unwrap();
-        for s in 0..K {
-            let br: &[f32; LANES] = b[s][o..o + LANES].try_into().unwrap();
-            for l in 0..LANES {
-                acc[s][l] += ar[l] * br[l];
-            }
-        }
-        o += LANES;
-    }
-    for k in full..N {
-        for s in 0..K {
-            acc[s][k - full] += a[k] * b[s][k];
-        }
-    }
-    let mut out = [0f32; K];
-    for s in 0..K {
-        out[s] = reduce_lanes(&acc[s]);
-    }
-    out
-}
-
-#[inline(always)]
-fn reduce_lanes(v: &[f32; LANES]) -> f32 {
-    let mut h = [0f32; LANES / 2];
-    for l in 0..LANES / 2 {
-        h[l] = v[l] + v[l + LANES / 2];
-    }
-    let q = [h[0] + h[4], h[1] + h[5], h[2] + h[6], h[3] + h[7]];
-    (q[0] + q[2]) + (q[1] + q[3])
 }
 
 /// `x = max(x, 0)` in place.
@@ -384,16 +374,5 @@ mod tests {
                 );
             }
         }
-    }
-
-    #[test]
-    fn dot_matches_naive() {
-        let mut rng = Rng::seed_from_u64(5);
-        let mut a = [0f32; 45];
-        let mut b = [0f32; 45];
-        rng.fill_normal(&mut a);
-        rng.fill_normal(&mut b);
-        let r: f64 = a.iter().zip(&b).map(|(x, y)| *x as f64 * *y as f64).sum();
-        assert!((dot(&a, &b) as f64 - r).abs() < 1e-5);
     }
 }
