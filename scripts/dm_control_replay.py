@@ -31,7 +31,11 @@ import time
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np  # noqa: E402
+from absl import logging  # noqa: E402
 from dm_control import suite  # noqa: E402
+
+# cheetah.xml's deprecated `settotalmass` makes MuJoCo warn on every load; only errors matter here.
+logging.set_verbosity(logging.ERROR)
 
 TASKS = [
     "cartpole-balance", "cartpole-swingup", "hopper-stand", "hopper-hop", "acrobot-swingup",

@@ -117,8 +117,16 @@ fn emit(out: &mut impl Write, record: &Record<'_>) -> Result<(), CliError> {
     Ok(())
 }
 
-/// `sim-bridge replay`.
-pub fn replay(task: &str, seed: u32, actions: &Path, out: &mut impl Write) -> Result<(), CliError> {
+/// `sim-bridge replay`. The output is buffered and written only when the whole replay succeeded,
+/// so a failure (e.g. the physics diverging mid-episode) leaves no partial trajectory.
+pub fn replay(
+    task: &str,
+    seed: u32,
+    actions: &Path,
+    sink: &mut impl Write,
+) -> Result<(), CliError> {
+    let mut buffer = Vec::new();
+    let out = &mut buffer;
     let spec = task_spec(task)?;
     let rows = read_actions(actions, spec.act_dim, spec.episode_steps)?;
     let mut env = make(task, seed)?;
@@ -136,7 +144,9 @@ pub fn replay(task: &str, seed: u32, actions: &Path, out: &mut impl Write) -> Re
         },
     )?;
     for (i, row) in rows.iter().enumerate() {
-        let step = env.try_step(row, &mut obs)?;
+        let step = env
+            .try_step(row, &mut obs)
+            .map_err(|e| CliError(format!("{}: row {}: {e}", actions.display(), i + 1)))?;
         emit(
             out,
             &Record {
@@ -152,7 +162,8 @@ pub fn replay(task: &str, seed: u32, actions: &Path, out: &mut impl Write) -> Re
             break;
         }
     }
-    out.flush()?;
+    sink.write_all(&buffer)?;
+    sink.flush()?;
     Ok(())
 }
 

@@ -135,7 +135,13 @@ impl Environment for SuiteEnv {
         self.check(action, obs)?;
         // `task.before_step` (set_control: copied as given, unclipped), `physics.step`.
         self.physics.ctrl_mut().copy_from_slice(action);
+        let warnings = self.physics.warning_counts();
         self.physics.step_synced(self.n_sub_steps, self.sync);
+        if let Some(warnings) = self.physics.new_warnings(&warnings) {
+            // Like dm_control's PhysicsError: the episode cannot continue.
+            self.step_count = None;
+            return Err(SimError::PhysicsError { warnings });
+        }
         let reward = self.task.reward(&self.physics);
         self.task.observe(&self.physics, obs);
         let count = self.step_count.map_or(1, |n| n + 1);

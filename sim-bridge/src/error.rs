@@ -42,6 +42,12 @@ pub enum SimError {
     #[error("action element {index} is {value}, which is not finite")]
     NonFiniteAction { index: usize, value: f64 },
 
+    #[error(
+        "the physics state became invalid: MuJoCo raised {warnings} (dm_control raises \
+         PhysicsError here too); reset() before stepping again"
+    )]
+    PhysicsError { warnings: String },
+
     #[error("the episode is over (it lasts {steps} steps); call reset() before stepping again")]
     EpisodeOver { steps: usize },
 }

@@ -7,6 +7,23 @@
 //!
 //! The trainer uses [`make`] and the [`Environment`] trait in-process; after construction no call
 //! allocates. The `sim-bridge` binary replays action files for cross-checks.
+//!
+//! (`no_run`: rustdoc builds doctests in a temporary directory, where the rpath to
+//! `.deps/mujoco` does not reach; the same code runs in `tests/no_alloc.rs`.)
+//! ```no_run
+//! let mut env = sim_bridge::make("pendulum-swingup", 0)?;
+//! let spec = env.spec().clone();
+//! let mut obs = vec![0.0; spec.obs_dim];
+//! env.reset(&mut obs);
+//! let mut total = 0.0;
+//! for t in 0..spec.episode_steps {
+//!     let step = env.step(&[(t as f64 * 0.1).sin()], &mut obs);
+//!     total += step.reward;
+//!     assert_eq!(step.last, t + 1 == spec.episode_steps);
+//! }
+//! assert!(total >= 0.0);
+//! # Ok::<(), sim_bridge::SimError>(())
+//! ```
 
 pub mod assets;
 pub mod cli;
@@ -58,9 +75,10 @@ pub trait Environment: Send {
     /// observation.
     ///
     /// # Panics
-    /// On a wrong action width, a non-finite action, or a step outside an episode (before the
-    /// first `reset` or after the `last` step): the same conditions [`Environment::try_step`]
-    /// reports as errors.
+    /// On a wrong action width, a non-finite action, a step outside an episode (before the first
+    /// `reset` or after the `last` step), or an invalid physics state (a MuJoCo warning such as
+    /// a diverging simulation, where dm_control raises `PhysicsError`): the conditions
+    /// [`Environment::try_step`] reports as errors.
     fn step(&mut self, action: &[f64], obs: &mut [f64]) -> Step;
     fn qpos(&self) -> &[f64];
     fn qvel(&self) -> &[f64];

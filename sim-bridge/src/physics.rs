@@ -16,6 +16,19 @@ use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
 use crate::assets;
 use crate::error::SimError;
 
+/// The names of MuJoCo's warning counters (`mjtWarning`), in index order.
+const WARNING_NAMES: [&str; WARNINGS] = [
+    "mjWARN_INERTIA",
+    "mjWARN_CONTACTFULL",
+    "mjWARN_CNSTRFULL",
+    "mjWARN_BADQPOS",
+    "mjWARN_BADQVEL",
+    "mjWARN_BADQACC",
+    "mjWARN_BADCTRL",
+];
+/// `mjNWARNING`.
+pub const WARNINGS: usize = 7;
+
 /// How much of `mjData` a control step brings up to date for the new state.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Sync {
@@ -107,6 +120,23 @@ impl Physics {
         for _ in 0..n_sub_steps {
             self.data.step();
         }
+    }
+
+    /// MuJoCo's warning counters (`data.warning[i].number`).
+    pub fn warning_counts(&self) -> [i32; WARNINGS] {
+        let warnings = &self.data.ffi().warning;
+        core::array::from_fn(|i| warnings[i].number)
+    }
+
+    /// The names of the warnings whose counters grew since `before`, or None. dm_control treats
+    /// any new warning during a step as an invalid physics state (`PhysicsError`).
+    pub fn new_warnings(&self, before: &[i32; WARNINGS]) -> Option<String> {
+        let after = self.warning_counts();
+        let names: Vec<&str> = (0..WARNINGS)
+            .filter(|&i| after[i] > before[i])
+            .map(|i| WARNING_NAMES[i])
+            .collect();
+        (!names.is_empty()).then(|| names.join(", "))
     }
 
     pub fn timestep(&self) -> f64 {
