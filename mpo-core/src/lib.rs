@@ -17,6 +17,7 @@
 pub mod actor;
 pub mod adam;
 pub mod critic;
+pub mod estep;
 pub mod gaussian;
 pub mod linear;
 pub mod params;

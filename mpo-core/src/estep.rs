@@ -1,0 +1,185 @@
+//! The non-parametric E-step: the temperature `eta*` from the convex dual, then the sample
+//! weights `q_ij = softmax_j(Q_ij / eta*)` (paper eq. 7-8; ALGORITHM-NOTES.md items 2-3).
+//!
+//! With `M` actions sampled per state from the old policy, the sample-based dual is
+//! `g(eta) = eta eps + eta mean_i log mean_j exp(Q_ij / eta)`, evaluated per state with a
+//! log-sum-exp around the state's largest `Q`. Its derivative is `g'(eta) = eps - KL(eta)`,
+//! where `KL(eta)` is the mean over states of `KL(q_i || uniform)` for the weights at that
+//! temperature, and `g''(eta) = mean_i Var_q(Q_i / eta) / eta >= 0`. So `eta*` is where the
+//! weights' KL to the sampling distribution equals `eps` (when the constraint binds), found
+//! by a safeguarded Newton iteration on `ln eta` inside a bracket: deterministic, a fixed
+//! worst-case cost, and warm-started from the previous temperature. All arithmetic in f64, so
+//! `Q` of any scale or offset gives the same weights.
+//!
+//! Shapes: `q` is `[B][M]` (state-major), `weights` the same.
+
+/// Lower clamp of the temperature (as in Acme, about `exp(-18)`).
+pub const ETA_MIN: f64 = 1e-8;
+/// Upper clamp of the temperature.
+pub const ETA_MAX: f64 = 1e12;
+
+/// Result of the temperature solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EStepSolution {
+    /// The temperature `eta*`.
+    pub eta: f32,
+    /// `g(eta*)`.
+    pub dual: f64,
+    /// Mean over states of `KL(q_i || uniform)` at `eta*` (equals `eps` when binding).
+    pub kl: f64,
+    /// Newton/bisection iterations used.
+    pub iterations: u32,
+    /// Whether `|KL - eps| <= tol * eps` was reached (false when the constraint cannot bind,
+    /// e.g. every state's `Q` values are equal, and `eta` sits at a clamp).
+    pub converged: bool,
+}
+
+/// Dual value, derivative in `ln eta` and second derivative in `ln eta`:
+/// `(g(eta), eps - KL(eta), mean Var)`.
+fn dual_terms<const M: usize>(q: &[[f32; M]], eps: f64, eta: f64) -> (f64, f64, f64) {
+    let mut lse_sum = 0.0;
+    let mut kl_sum = 0.0;
+    let mut var_sum = 0.0;
+    for row in q {
+        let mut mx = f64::NEG_INFINITY;
+        for &v in row {
+            mx = mx.max(v as f64);
+        }
+        // z_j = (Q_j - max) / eta <= 0; s = sum exp(z); E[z], E[z^2] under softmax weights.
+        let mut s = 0.0;
+        let mut ez = 0.0;
+        let mut ez2 = 0.0;
+        for &v in row {
+            let z = (v as f64 - mx) / eta;
+            let e = libm::exp(z);
+            s += e;
+            ez += e * z;
+            ez2 += e * z * z;
+        }
+        ez /= s;
+        ez2 /= s;
+        let log_mean = libm::log(s) - libm::log(M as f64);
+        // log mean_j exp(Q_j / eta) = max / eta + log_mean.
+        lse_sum += mx / eta + log_mean;
+        // KL(w || uniform) = E_w[z] - log mean exp(z).
+        kl_sum += ez - log_mean;
+        var_sum += (ez2 - ez * ez).max(0.0);
+    }
+    let n = q.len() as f64;
+    (eta * eps + eta * lse_sum / n, eps - kl_sum / n, var_sum / n)
+}
+
+/// The dual `g(eta)` (for tests and diagnostics).
+pub fn dual<const M: usize>(q: &[[f32; M]], eps: f32, eta: f64) -> f64 {
+    dual_terms(q, eps as f64, eta).0
+}
+
+/// Minimises the dual over `eta` in `[ETA_MIN, ETA_MAX]`, starting from `eta_start`.
+///
+/// Solves `h(u) = eps - KL(e^u) = 0` (monotone increasing in `u = ln eta`) by Newton steps
+/// that are kept inside a bracket and replaced by bisection when they leave it; stops when
+/// `|h| <= tol * eps` or the bracket is narrower than 1e-12 in `ln eta`, after at most
+/// `max_iter` evaluations (each costs `B M` exponentials).
+pub fn solve_temperature<const M: usize>(
+    q: &[[f32; M]],
+    eps: f32,
+    eta_start: f32,
+    tol: f64,
+    max_iter: u32,
+) -> EStepSolution {
+    let eps = eps as f64;
+    let (lo_lim, hi_lim) = (libm::log(ETA_MIN), libm::log(ETA_MAX));
+    let mut u = libm::log((eta_start as f64).clamp(ETA_MIN, ETA_MAX));
+    let (mut lo, mut hi) = (lo_lim, hi_lim);
+    let mut it = 0;
+    let mut converged = false;
+    loop {
+        let (_, h, dh) = dual_terms(q, eps, libm::exp(u));
+        it += 1;
+        if h.abs() <= tol * eps {
+            converged = true;
+            break;
+        }
+        if h > 0.0 {
+            hi = u; // KL below eps: the root is at a smaller temperature
+        } else {
+            lo = u;
+        }
+        if it >= max_iter || hi - lo < 1e-12 {
+            break;
+        }
+        let newton = if dh > 0.0 { u - h / dh } else { f64::NAN };
+        // Until both ends are known, Newton steps are limited to 4 (a factor e^4 in eta) so a
+        // flat dual cannot throw the iterate to a clamp.
+        let step_ok = newton.is_finite() && newton > lo && newton < hi && (newton - u).abs() <= 4.0;
+        u = if step_ok {
+            newton
+        } else if lo == lo_lim && h > 0.0 {
+            (u - 4.0).max(lo_lim)
+        } else if hi == hi_lim && h < 0.0 {
+            (u + 4.0).min(hi_lim)
+        } else {
+            0.5 * (lo + hi)
+        };
+        if (u == lo_lim && h > 0.0) || (u == hi_lim && h < 0.0) {
+            // Evaluate at the clamp once more and stop there.
+            let (_, h2, _) = dual_terms(q, eps, libm::exp(u));
+            it += 1;
+            converged = h2.abs() <= tol * eps;
+            if (h2 > 0.0) == (h > 0.0) {
+                break;
+            }
+        }
+    }
+    let eta = libm::exp(u);
+    let (g, h, _) = dual_terms(q, eps, eta);
+    EStepSolution { eta: eta as f32, dual: g, kl: eps - h, iterations: it, converged }
+}
+
+/// `weights[i][j] = softmax_j(Q_ij / eta)`; returns the mean over states of
+/// `KL(weights_i || uniform)`.
+pub fn weights<const M: usize>(q: &[[f32; M]], eta: f32, weights: &mut [[f32; M]]) -> f64 {
+    assert_eq!(q.len(), weights.len(), "weights: shapes differ");
+    let eta = eta as f64;
+    let mut kl = 0.0;
+    for (row, w) in q.iter().zip(weights.iter_mut()) {
+        let mut mx = f64::NEG_INFINITY;
+        for &v in row {
+            mx = mx.max(v as f64);
+        }
+        let mut e = [0f64; M];
+        let mut s = 0.0;
+        for j in 0..M {
+            e[j] = libm::exp((row[j] as f64 - mx) / eta);
+            s += e[j];
+        }
+        for j in 0..M {
+            let p = e[j] / s;
+            w[j] = p as f32;
+            if p > 0.0 {
+                kl += p * libm::log(p * M as f64);
+            }
+        }
+    }
+    kl / q.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn equal_q_values_cannot_bind_and_give_uniform_weights() {
+        let q = [[3.0f32; 8]; 4];
+        let s = solve_temperature(&q, 0.1, 1.0, 1e-6, 100);
+        assert!(!s.converged);
+        assert!(s.kl.abs() < 1e-12);
+        let mut w = [[0f32; 8]; 4];
+        weights(&q, s.eta, &mut w);
+        for row in w {
+            for x in row {
+                assert!((x - 0.125).abs() < 1e-7);
+            }
+        }
+    }
+}

@@ -1,0 +1,117 @@
+//! E-step: the temperature solver against brute-force minimisation of the dual, the KL
+//! constraint, and invariance of the weights to the scale and offset of Q.
+
+use mpo_core::estep::{dual, solve_temperature, weights};
+use mpo_core::rng::Rng;
+
+const B: usize = 64;
+const M: usize = 20;
+const EPS: f32 = 0.1;
+
+fn random_q(rng: &mut Rng, scale: f32) -> Vec<[f32; M]> {
+    (0..B)
+        .map(|_| {
+            let offset = rng.normal() * 3.0;
+            let spread = 0.2 + rng.uniform() * 2.0;
+            let mut row = [0f32; M];
+            for x in &mut row {
+                // On a 1/8 grid so that adding 1e6 is exact in f32 (ulp of 1e6 is 1/16):
+                // the shift test then measures the algorithm, not input rounding.
+                *x = (((offset + spread * rng.normal()) * scale) * 8.0).round() / 8.0;
+            }
+            row
+        })
+        .collect()
+}
+
+/// Golden-section search of g over ln(eta), after a coarse grid scan: no derivatives, no
+/// shared code with the solver.
+fn brute_force_eta(q: &[[f32; M]]) -> f64 {
+    let g = |u: f64| dual(q, EPS, u.exp());
+    let mut best = (f64::INFINITY, 0.0);
+    let mut u = -18.0;
+    while u <= 28.0 {
+        let v = g(u);
+        if v < best.0 {
+            best = (v, u);
+        }
+        u += 0.01;
+    }
+    let (mut a, mut b) = (best.1 - 0.02, best.1 + 0.02);
+    let r = (5f64.sqrt() - 1.0) / 2.0;
+    for _ in 0..200 {
+        let c = b - r * (b - a);
+        let d = a + r * (b - a);
+        if g(c) < g(d) {
+            b = d;
+        } else {
+            a = c;
+        }
+    }
+    (0.5 * (a + b)).exp()
+}
+
+#[test]
+fn eta_matches_brute_force_minimisation_and_kl_meets_the_bound() {
+    let mut rng = Rng::seed_from_u64(21);
+    let mut worst_eta = 0f64;
+    let mut worst_kl = 0f64;
+    for trial in 0..20 {
+        let scale = 1.0 + 10.0 * rng.uniform();
+        let q = random_q(&mut rng, scale);
+        let s = solve_temperature(&q, EPS, 1.0, 1e-9, 100);
+        assert!(s.converged, "trial {trial}: {s:?}");
+        let brute = brute_force_eta(&q);
+        let rel = (s.eta as f64 - brute).abs() / brute;
+        assert!(rel < 1e-5, "trial {trial}: eta {} brute force {brute} (rel {rel:.2e})", s.eta);
+        // The constraint binds (log M = 3.0 > eps): KL(weights || sampling) = eps within 1%.
+        let mut w = vec![[0f32; M]; B];
+        let kl = weights(&q, s.eta, &mut w);
+        let kl_rel = (kl - EPS as f64).abs() / EPS as f64;
+        assert!(kl_rel < 0.01, "trial {trial}: KL {kl}");
+        for row in &w {
+            let sum: f32 = row.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-5);
+        }
+        worst_eta = worst_eta.max(rel);
+        worst_kl = worst_kl.max(kl_rel);
+    }
+    eprintln!("worst eta relative error {worst_eta:.2e}, worst KL relative error {worst_kl:.2e}");
+}
+
+#[test]
+fn weights_are_invariant_to_scaling_and_shifting_q() {
+    let mut rng = Rng::seed_from_u64(22);
+    for _ in 0..10 {
+        let q = random_q(&mut rng, 1.0);
+        let base = solve_temperature(&q, EPS, 1.0, 1e-9, 100);
+        let mut w0 = vec![[0f32; M]; B];
+        weights(&q, base.eta, &mut w0);
+        for (label, f) in [
+            ("scaled by 1e6", Box::new(|x: f32| x * 1e6) as Box<dyn Fn(f32) -> f32>),
+            ("shifted by 1e6", Box::new(|x: f32| x + 1e6)),
+        ] {
+            let q2: Vec<[f32; M]> = q.iter().map(|r| r.map(&f)).collect();
+            // Warm start from the unscaled temperature: the solver must travel far.
+            let s = solve_temperature(&q2, EPS, base.eta, 1e-9, 100);
+            assert!(s.converged && s.eta.is_finite(), "{label}: {s:?}");
+            let mut w = vec![[0f32; M]; B];
+            weights(&q2, s.eta, &mut w);
+            for (a, b) in w.iter().flatten().zip(w0.iter().flatten()) {
+                assert!(a.is_finite());
+                assert!((a - b).abs() < 1e-6, "{label}: weight {a} vs {b}");
+            }
+        }
+    }
+}
+
+#[test]
+fn solver_is_deterministic_and_cheap_from_a_warm_start() {
+    let mut rng = Rng::seed_from_u64(23);
+    let q = random_q(&mut rng, 5.0);
+    let a = solve_temperature(&q, EPS, 1.0, 1e-6, 100);
+    let b = solve_temperature(&q, EPS, 1.0, 1e-6, 100);
+    assert_eq!(a.eta.to_bits(), b.eta.to_bits());
+    let warm = solve_temperature(&q, EPS, a.eta * 1.1, 1e-6, 100);
+    assert!(warm.iterations <= 5, "warm start took {} iterations", warm.iterations);
+}
