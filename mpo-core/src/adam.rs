@@ -28,8 +28,9 @@ impl AdamConfig {
 }
 
 /// Step count and the running powers `beta^t` used for bias correction (kept as products,
-/// not recomputed with `powf`, so a checkpoint restores them exactly).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// not recomputed with `powf`, so a checkpoint restores them exactly). The all-zero value is
+/// not a valid state: start from `AdamState::default()`.
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Zeroable)]
 pub struct AdamState {
     /// Steps taken.
     pub t: u64,
@@ -59,25 +60,41 @@ pub fn adam_step<P: Params>(
     m: &mut P,
     v: &mut P,
 ) {
-    state.t += 1;
-    state.beta1_pow *= cfg.beta1;
-    state.beta2_pow *= cfg.beta2;
-    let c1 = 1.0 / (1.0 - state.beta1_pow);
-    let c2 = 1.0 / (1.0 - state.beta2_pow);
+    state.advance(cfg);
     for k in 0..P::TENSORS {
-        let (p, g) = (params.tensor_mut(k), grads.tensor(k));
-        let (mk, vk) = (m.tensor_mut(k), v.tensor_mut(k));
+        state.apply(
+            cfg,
+            params.tensor_mut(k),
+            grads.tensor(k),
+            m.tensor_mut(k),
+            v.tensor_mut(k),
+        );
+    }
+}
+
+impl AdamState {
+    /// Counts one step (call once per step, before [`AdamState::apply`]).
+    pub fn advance(&mut self, cfg: &AdamConfig) {
+        self.t += 1;
+        self.beta1_pow *= cfg.beta1;
+        self.beta2_pow *= cfg.beta2;
+    }
+
+    /// Applies the current step to one flat tensor and its moments.
+    pub fn apply(&self, cfg: &AdamConfig, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
+        let c1 = 1.0 / (1.0 - self.beta1_pow);
+        let c2 = 1.0 / (1.0 - self.beta2_pow);
         for i in 0..p.len() {
-            mk[i] = cfg.beta1 * mk[i] + (1.0 - cfg.beta1) * g[i];
-            vk[i] = cfg.beta2 * vk[i] + (1.0 - cfg.beta2) * (g[i] * g[i]);
-            let m_hat = mk[i] * c1;
-            let v_hat = vk[i] * c2;
+            m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * g[i];
+            v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (g[i] * g[i]);
+            let m_hat = m[i] * c1;
+            let v_hat = v[i] * c2;
             p[i] -= cfg.lr * m_hat / (libm::sqrtf(v_hat) + cfg.eps);
         }
     }
 }
 
-/// Adam on a single scalar (the dual variables).
+/// Adam on a single scalar.
 pub fn adam_step_scalar(
     cfg: &AdamConfig,
     state: &mut AdamState,
@@ -86,14 +103,14 @@ pub fn adam_step_scalar(
     m: &mut f32,
     v: &mut f32,
 ) {
-    state.t += 1;
-    state.beta1_pow *= cfg.beta1;
-    state.beta2_pow *= cfg.beta2;
-    *m = cfg.beta1 * *m + (1.0 - cfg.beta1) * g;
-    *v = cfg.beta2 * *v + (1.0 - cfg.beta2) * (g * g);
-    let m_hat = *m / (1.0 - state.beta1_pow);
-    let v_hat = *v / (1.0 - state.beta2_pow);
-    *p -= cfg.lr * m_hat / (libm::sqrtf(v_hat) + cfg.eps);
+    state.advance(cfg);
+    state.apply(
+        cfg,
+        core::slice::from_mut(p),
+        &[g],
+        core::slice::from_mut(m),
+        core::slice::from_mut(v),
+    );
 }
 
 #[cfg(test)]

@@ -133,7 +133,13 @@ pub fn solve_temperature<const M: usize>(
     }
     let eta = libm::exp(u);
     let (g, h, _) = dual_terms(q, eps, eta);
-    EStepSolution { eta: eta as f32, dual: g, kl: eps - h, iterations: it, converged }
+    EStepSolution {
+        eta: eta as f32,
+        dual: g,
+        kl: eps - h,
+        iterations: it,
+        converged,
+    }
 }
 
 /// `weights[i][j] = softmax_j(Q_ij / eta)`; returns the mean over states of

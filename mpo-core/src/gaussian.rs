@@ -53,7 +53,7 @@ pub fn softplus_inverse(y: f32) -> f32 {
 }
 
 /// A Gaussian `N(mu, L L^T)` over `A` action dimensions.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Zeroable)]
 pub struct Gaussian<const A: usize> {
     /// Mean.
     pub mu: [f32; A],
@@ -198,14 +198,30 @@ impl<const A: usize> Gaussian<A> {
 
 /// KL(old || new) in its two parts.
 pub fn kl_parts<const A: usize>(old: &Gaussian<A>, new: &Gaussian<A>) -> KlParts {
-    kl_parts_impl(old, new, None, 0.0, 0.0)
+    kl_per_dim_impl(old, new, None, &[0.0; A], &[0.0; A]).total()
 }
 
-/// KL(old || new) in its two parts, adding `c_mean * d(mean part) + c_cov * d(cov part)`
-/// with respect to the new distribution's `(mu, L)` into `g`.
-///
-/// - mean part, `y = L^-1 (mu - mu_old)`, `u = L^-T y`: `d/d mu = u`, `d/d L = -u y^T`;
-/// - covariance part, `M = L^-1 L_old`: `d/d L = -L^-T M M^T + diag(1 / L_jj)`.
+/// KL(old || new) split by action dimension (rows of the whitened representation).
+pub fn kl_per_dim<const A: usize>(old: &Gaussian<A>, new: &Gaussian<A>) -> KlPerDim<A> {
+    kl_per_dim_impl(old, new, None, &[0.0; A], &[0.0; A])
+}
+
+/// [`kl_per_dim`], adding `sum_j c_mean[j] d(mean_j) + c_cov[j] d(cov_j)` with respect to the
+/// new distribution's `(mu, L)` into `g`. With `y = L^-1 (mu - mu_old)`, `u = L^-T (c_mean * y)`,
+/// `M = L^-1 L_old` and `C = diag(c_cov)`:
+/// - mean parts: `d/d mu = u`, `d/d L = -u y^T`;
+/// - covariance parts: `d/d L = -L^-T C M M^T + diag(c_cov[j] / L_jj)`.
+pub fn kl_per_dim_grad<const A: usize>(
+    old: &Gaussian<A>,
+    new: &Gaussian<A>,
+    c_mean: &[f32; A],
+    c_cov: &[f32; A],
+    g: &mut GaussianGrad<A>,
+) -> KlPerDim<A> {
+    kl_per_dim_impl(old, new, Some(g), c_mean, c_cov)
+}
+
+/// [`kl_per_dim_grad`] with one coefficient for all dimensions of each part.
 pub fn kl_parts_grad<const A: usize>(
     old: &Gaussian<A>,
     new: &Gaussian<A>,
@@ -213,74 +229,97 @@ pub fn kl_parts_grad<const A: usize>(
     c_cov: f32,
     g: &mut GaussianGrad<A>,
 ) -> KlParts {
-    kl_parts_impl(old, new, Some(g), c_mean, c_cov)
+    kl_per_dim_impl(old, new, Some(g), &[c_mean; A], &[c_cov; A]).total()
 }
 
-fn kl_parts_impl<const A: usize>(
+/// KL(old || new) by action dimension `j`: the mean part `0.5 y_j^2` with
+/// `y = L^-1 (mu - mu_old)`, and the covariance part
+/// `0.5 (m_jj^2 - 1 - 2 ln m_jj + sum_{k<j} m_jk^2)` with `M = L^-1 L_old`. Each term is
+/// non-negative and they sum to [`KlParts`]; for diagonal Gaussians they are the usual
+/// per-dimension divergences.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KlPerDim<const A: usize> {
+    /// Mean part by dimension.
+    pub mean: [f32; A],
+    /// Covariance part by dimension.
+    pub cov: [f32; A],
+}
+
+impl<const A: usize> KlPerDim<A> {
+    /// The two parts summed over dimensions.
+    pub fn total(&self) -> KlParts {
+        let mut t = KlParts::default();
+        for j in 0..A {
+            t.mean += self.mean[j];
+            t.cov += self.cov[j];
+        }
+        t
+    }
+}
+
+fn kl_per_dim_impl<const A: usize>(
     old: &Gaussian<A>,
     new: &Gaussian<A>,
     g: Option<&mut GaussianGrad<A>>,
-    c_mean: f32,
-    c_cov: f32,
-) -> KlParts {
+    c_mean: &[f32; A],
+    c_cov: &[f32; A],
+) -> KlPerDim<A> {
     let mut d = [0f32; A];
     for j in 0..A {
         d[j] = new.mu[j] - old.mu[j];
     }
     let y = solve_lower(&new.l, &d);
-    let mut mean = 0.0;
-    for v in y {
-        mean += v * v;
+    let mut out = KlPerDim {
+        mean: [0.0; A],
+        cov: [0.0; A],
+    };
+    for j in 0..A {
+        out.mean[j] = 0.5 * y[j] * y[j];
     }
-    mean *= 0.5;
-
-    // M = L^-1 L_old, lower triangular; each term of the sum below is >= 0, which keeps the
-    // tiny covariance KLs of the M-step (eps_Sigma ~ 1e-4) free of cancellation.
+    // M = L^-1 L_old, lower triangular; every term below is >= 0, which keeps the tiny
+    // covariance KLs of the M-step (eps_Sigma ~ 1e-4) free of cancellation.
     let m = lower_inv_times(&new.l, &old.l);
-    let mut cov = 0.0;
     for j in 0..A {
         let mjj = m[j][j];
-        cov += (mjj - 1.0) * (mjj + 1.0) - 2.0 * libm::logf(mjj);
+        let mut r = (mjj - 1.0) * (mjj + 1.0) - 2.0 * libm::logf(mjj);
         for k in 0..j {
-            cov += m[j][k] * m[j][k];
+            r += m[j][k] * m[j][k];
         }
+        out.cov[j] = 0.5 * r;
     }
-    cov *= 0.5;
 
     if let Some(g) = g {
-        let u = solve_upper_t(&new.l, &y);
+        let mut cy = [0f32; A];
         for j in 0..A {
-            g.mu[j] += c_mean * u[j];
+            cy[j] = c_mean[j] * y[j];
+        }
+        let u = solve_upper_t(&new.l, &cy);
+        for j in 0..A {
+            g.mu[j] += u[j];
             for k in 0..=j {
-                g.l[j][k] -= c_mean * (u[j] * y[k]);
+                g.l[j][k] -= u[j] * y[k];
             }
         }
-        // N = M M^T (symmetric); P = L^-T N, column by column.
-        let mut n = [[0f32; A]; A];
-        for r in 0..A {
-            for c in 0..A {
+        // P = L^-T C M M^T, column by column.
+        for c in 0..A {
+            let mut col = [0f32; A];
+            for r in 0..A {
                 let mut s = 0.0;
                 for k in 0..=r.min(c) {
                     s += m[r][k] * m[c][k];
                 }
-                n[r][c] = s;
-            }
-        }
-        for c in 0..A {
-            let mut col = [0f32; A];
-            for r in 0..A {
-                col[r] = n[r][c];
+                col[r] = c_cov[r] * s;
             }
             let p = solve_upper_t(&new.l, &col);
             for j in c..A {
-                g.l[j][c] -= c_cov * p[j];
+                g.l[j][c] -= p[j];
             }
         }
         for j in 0..A {
-            g.l[j][j] += c_cov / new.l[j][j];
+            g.l[j][j] += c_cov[j] / new.l[j][j];
         }
     }
-    KlParts { mean, cov }
+    out
 }
 
 /// Maps a gradient with respect to `(mu, L)` back to the raw head outputs.

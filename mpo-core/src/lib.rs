@@ -16,9 +16,12 @@
 
 pub mod actor;
 pub mod adam;
+pub mod config;
 pub mod critic;
 pub mod estep;
+pub mod evaluation;
 pub mod gaussian;
+pub mod learner;
 pub mod linear;
 pub mod params;
 pub mod replay;

@@ -63,7 +63,11 @@ fn eta_matches_brute_force_minimisation_and_kl_meets_the_bound() {
         assert!(s.converged, "trial {trial}: {s:?}");
         let brute = brute_force_eta(&q);
         let rel = (s.eta as f64 - brute).abs() / brute;
-        assert!(rel < 1e-5, "trial {trial}: eta {} brute force {brute} (rel {rel:.2e})", s.eta);
+        assert!(
+            rel < 1e-5,
+            "trial {trial}: eta {} brute force {brute} (rel {rel:.2e})",
+            s.eta
+        );
         // The constraint binds (log M = 3.0 > eps): KL(weights || sampling) = eps within 1%.
         let mut w = vec![[0f32; M]; B];
         let kl = weights(&q, s.eta, &mut w);
@@ -88,7 +92,10 @@ fn weights_are_invariant_to_scaling_and_shifting_q() {
         let mut w0 = vec![[0f32; M]; B];
         weights(&q, base.eta, &mut w0);
         for (label, f) in [
-            ("scaled by 1e6", Box::new(|x: f32| x * 1e6) as Box<dyn Fn(f32) -> f32>),
+            (
+                "scaled by 1e6",
+                Box::new(|x: f32| x * 1e6) as Box<dyn Fn(f32) -> f32>,
+            ),
             ("shifted by 1e6", Box::new(|x: f32| x + 1e6)),
         ] {
             let q2: Vec<[f32; M]> = q.iter().map(|r| r.map(&f)).collect();
@@ -113,5 +120,9 @@ fn solver_is_deterministic_and_cheap_from_a_warm_start() {
     let b = solve_temperature(&q, EPS, 1.0, 1e-6, 100);
     assert_eq!(a.eta.to_bits(), b.eta.to_bits());
     let warm = solve_temperature(&q, EPS, a.eta * 1.1, 1e-6, 100);
-    assert!(warm.iterations <= 5, "warm start took {} iterations", warm.iterations);
+    assert!(
+        warm.iterations <= 5,
+        "warm start took {} iterations",
+        warm.iterations
+    );
 }

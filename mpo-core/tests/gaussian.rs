@@ -1,7 +1,8 @@
 //! The policy Gaussian against direct formulas, sample statistics and finite differences.
 
 use mpo_core::gaussian::{
-    Gaussian, GaussianGrad, head_backward, kl_parts, kl_parts_grad, tri_index,
+    Gaussian, GaussianGrad, head_backward, kl_parts, kl_parts_grad, kl_per_dim, kl_per_dim_grad,
+    tri_index,
 };
 use mpo_core::rng::Rng;
 use nalgebra::{SMatrix, SVector};
@@ -135,13 +136,23 @@ fn kl_parts_sum_to_the_full_kl_and_vanish_at_equality() {
     }
 }
 
+const PD_MEAN: [f32; A] = [0.3, 1.7, 0.9];
+const PD_COV: [f32; A] = [2.0, 0.5, 1.1];
+
 /// The scalar function of the raw head outputs whose gradient is checked.
 fn objective(which: usize, old: &Gaussian<A>, a: &[f32; A], m: &[f32; A], c: &[f32; T]) -> f64 {
     let g = Gaussian::from_head(m, c, FLOOR);
     match which {
         0 => g.log_prob(a) as f64,
         1 => kl_parts(old, &g).mean as f64,
-        _ => kl_parts(old, &g).cov as f64,
+        2 => kl_parts(old, &g).cov as f64,
+        _ => {
+            // A weighted sum of the per-dimension parts (the per-dimension constraints).
+            let p = kl_per_dim(old, &g);
+            (0..A)
+                .map(|j| PD_MEAN[j] as f64 * p.mean[j] as f64 + PD_COV[j] as f64 * p.cov[j] as f64)
+                .sum()
+        }
     }
 }
 
@@ -156,7 +167,7 @@ fn gradients_match_central_differences() {
         let mut a = [0f32; A];
         rng.fill_normal(&mut a);
         let g = Gaussian::from_head(&m, &c, FLOOR);
-        for which in 0..3 {
+        for which in 0..4 {
             let mut gg = GaussianGrad::ZERO;
             match which {
                 0 => {
@@ -165,8 +176,11 @@ fn gradients_match_central_differences() {
                 1 => {
                     kl_parts_grad(&old, &g, 1.0, 0.0, &mut gg);
                 }
-                _ => {
+                2 => {
                     kl_parts_grad(&old, &g, 0.0, 1.0, &mut gg);
+                }
+                _ => {
+                    kl_per_dim_grad(&old, &g, &PD_MEAN, &PD_COV, &mut gg);
                 }
             }
             let mut dm = [0f32; A];

@@ -1,0 +1,165 @@
+//! The learner's hyperparameters: one flat struct, validated as a whole.
+//!
+//! Defaults are the report's (Table 1: eps 0.1, eps_mean 0.1, eps_cov 1e-4, gamma 0.99, Adam
+//! 3e-4, five M-step iterations, actor gradient norm clipped at 0.1). Alternatives from the
+//! reference implementations (ALGORITHM-NOTES.md), all expressible here:
+//! - Acme: `per_dim_kl = true` with eps_mean 2.5e-3 and eps_cov 1e-6 per dimension, dual lr
+//!   1e-2, actor lr 1e-4, gradient clip 40, 5-step returns, target period 100;
+//! - tonic: eps_mean 1e-3, eps_cov 1e-6, lr 3e-4, 5-step returns;
+//! - the paper: Adam 5e-4.
+
+/// MPO hyperparameters.
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Zeroable)]
+pub struct MpoConfig {
+    /// E-step bound on KL(q || pi_old) per state (eps).
+    pub eps_eta: f32,
+    /// M-step bound on the mean part of KL(pi_old || pi) (eps_mu).
+    pub eps_mean: f32,
+    /// M-step bound on the covariance part (eps_Sigma).
+    pub eps_cov: f32,
+    /// One constraint (and multiplier) per action dimension, each with bound
+    /// `eps / ACT`, instead of one on the sum (Acme's per-dimension KL).
+    pub per_dim_kl: bool,
+    /// Discount factor (used by Retrace; TD targets take the batch's bootstrap multipliers).
+    pub gamma: f32,
+    /// Actor Adam step size.
+    pub actor_lr: f32,
+    /// Critic Adam step size.
+    pub critic_lr: f32,
+    /// Adam step size of the M-step multipliers (in their softplus parameterisation).
+    pub dual_lr: f32,
+    /// Policy gradient steps per update (the report's inner iterations).
+    pub mstep_iters: u32,
+    /// Actor gradient global-norm clip.
+    pub actor_clip: f32,
+    /// Critic gradient global-norm clip.
+    pub critic_clip: f32,
+    /// Updates between copies of the online networks into the target networks.
+    pub target_period: u32,
+    /// Initial policy standard deviation.
+    pub init_std: f32,
+    /// Floor added to the Cholesky diagonal.
+    pub std_floor: f32,
+    /// Initial temperature (the solver then warm-starts from the last one).
+    pub eta_init: f32,
+    /// Initial multiplier of the mean constraint (the report gives none; Acme starts at 10).
+    pub alpha_mean_init: f32,
+    /// Initial multiplier of the covariance constraint (Acme starts at 1000: the covariance
+    /// bound is tight and must hold from the first update).
+    pub alpha_cov_init: f32,
+    /// E-step tolerance: stop when `|KL - eps| <= tol * eps`.
+    pub estep_tol: f64,
+    /// E-step iteration limit (each costs `B M` exponentials).
+    pub estep_max_iter: u32,
+}
+
+impl MpoConfig {
+    /// The report's settings.
+    pub const REPORT: Self = Self {
+        eps_eta: 0.1,
+        eps_mean: 0.1,
+        eps_cov: 1e-4,
+        per_dim_kl: false,
+        gamma: 0.99,
+        actor_lr: 3e-4,
+        critic_lr: 3e-4,
+        dual_lr: 1e-2,
+        mstep_iters: 5,
+        actor_clip: 0.1,
+        critic_clip: 40.0,
+        target_period: 100,
+        init_std: 0.5,
+        std_floor: 1e-4,
+        eta_init: 1.0,
+        alpha_mean_init: 10.0,
+        alpha_cov_init: 1000.0,
+        estep_tol: 1e-3,
+        estep_max_iter: 50,
+    };
+
+    /// Checks every field; the first problem found is returned.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let pos = |name: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(ConfigError {
+                    field: name,
+                    requirement: "a finite number > 0",
+                })
+            }
+        };
+        pos("eps_eta", self.eps_eta as f64)?;
+        pos("eps_mean", self.eps_mean as f64)?;
+        pos("eps_cov", self.eps_cov as f64)?;
+        pos("actor_lr", self.actor_lr as f64)?;
+        pos("critic_lr", self.critic_lr as f64)?;
+        pos("dual_lr", self.dual_lr as f64)?;
+        pos("actor_clip", self.actor_clip as f64)?;
+        pos("critic_clip", self.critic_clip as f64)?;
+        pos("init_std", self.init_std as f64)?;
+        pos("std_floor", self.std_floor as f64)?;
+        pos("eta_init", self.eta_init as f64)?;
+        pos("alpha_mean_init", self.alpha_mean_init as f64)?;
+        pos("alpha_cov_init", self.alpha_cov_init as f64)?;
+        pos("estep_tol", self.estep_tol)?;
+        if !(self.gamma >= 0.0 && self.gamma <= 1.0) {
+            return Err(ConfigError {
+                field: "gamma",
+                requirement: "in [0, 1]",
+            });
+        }
+        if self.mstep_iters == 0 {
+            return Err(ConfigError {
+                field: "mstep_iters",
+                requirement: "at least 1",
+            });
+        }
+        if self.target_period == 0 {
+            return Err(ConfigError {
+                field: "target_period",
+                requirement: "at least 1",
+            });
+        }
+        if self.estep_max_iter == 0 {
+            return Err(ConfigError {
+                field: "estep_max_iter",
+                requirement: "at least 1",
+            });
+        }
+        if self.std_floor >= self.init_std {
+            return Err(ConfigError {
+                field: "std_floor",
+                requirement: "smaller than init_std",
+            });
+        }
+        Ok(())
+    }
+}
+
+impl Default for MpoConfig {
+    fn default() -> Self {
+        Self::REPORT
+    }
+}
+
+/// A configuration field out of range.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ConfigError {
+    /// The field's name.
+    pub field: &'static str,
+    /// What it must be.
+    pub requirement: &'static str,
+}
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "configuration field `{}` must be {}",
+            self.field, self.requirement
+        )
+    }
+}
+
+impl core::error::Error for ConfigError {}
