@@ -189,4 +189,39 @@ fn main() {
             py.map_or("n/a".into(), |p| format!("{:.1}", p / e)),
         );
     }
+    load_times();
+}
+
+/// Model load time: MuJoCo's plain XML loader on the suite file (with the skybox texture) versus
+/// sim-bridge's loader (skybox replaced by an empty include), best of 5 each.
+fn load_times() {
+    use mujoco_rs::prelude::MjModel;
+    println!();
+    println!(
+        "{:<10} {:>16} {:>16}",
+        "model", "with skybox ms", "sim-bridge ms"
+    );
+    for domain in [
+        "cartpole", "hopper", "acrobot", "pendulum", "walker", "cheetah",
+    ] {
+        let path = sim_bridge::assets::suite_dir().join(format!("{domain}.xml"));
+        let time = |f: &dyn Fn()| {
+            best(
+                (0..5)
+                    .map(|_| {
+                        let t0 = Instant::now();
+                        f();
+                        t0.elapsed().as_secs_f64()
+                    })
+                    .collect(),
+            )
+        };
+        let plain = time(&|| drop(black_box(MjModel::from_xml(&path).expect("load"))));
+        let ours = time(&|| {
+            drop(black_box(
+                sim_bridge::assets::load_model(domain).expect("load"),
+            ))
+        });
+        println!("{:<10} {:>16.1} {:>16.1}", domain, plain * 1e3, ours * 1e3);
+    }
 }

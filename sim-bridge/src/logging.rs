@@ -2,13 +2,17 @@
 //!
 //! MuJoCo's default handler appends every warning to a log file in the current directory, which
 //! litters whatever directory a user or test runs in. The handler here prints warnings and errors
-//! to stderr and drops informational messages.
+//! to stderr, each distinct message once per process (cheetah.xml's deprecated `settotalmass`
+//! warns on every load), and drops informational messages.
 
-use std::sync::Once;
+use std::collections::HashSet;
+use std::sync::{Mutex, Once};
 
 use mujoco_rs::prelude::{MjLogMessage, MjtLogLevel, set_log_handler};
 
 static INSTALL: Once = Once::new();
+/// The subjects already printed.
+static SEEN: Mutex<Option<HashSet<String>>> = Mutex::new(None);
 
 fn to_stderr(message: &MjLogMessage) {
     let level = match message.level() {
@@ -16,6 +20,12 @@ fn to_stderr(message: &MjLogMessage) {
         MjtLogLevel::mjLOG_WARNING => "warning",
         _ => return,
     };
+    if level == "warning" {
+        let mut seen = SEEN.lock().unwrap_or_else(|e| e.into_inner());
+        if !seen.get_or_insert_with(HashSet::new).insert(message.subject().to_string()) {
+            return;
+        }
+    }
     match message.body() {
         Some(body) if !body.is_empty() => {
             eprintln!("mujoco {level}: {}\n{body}", message.subject())
