@@ -22,7 +22,10 @@ fn to_stderr(message: &MjLogMessage) {
     };
     if level == "warning" {
         let mut seen = SEEN.lock().unwrap_or_else(|e| e.into_inner());
-        if !seen.get_or_insert_with(HashSet::new).insert(message.subject().to_string()) {
+        if !seen
+            .get_or_insert_with(HashSet::new)
+            .insert(message.subject().to_string())
+        {
             return;
         }
     }
