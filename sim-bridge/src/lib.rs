@@ -82,8 +82,11 @@ pub trait Environment: Send {
     fn step(&mut self, action: &[f64], obs: &mut [f64]) -> Step;
     fn qpos(&self) -> &[f64];
     fn qvel(&self) -> &[f64];
-    /// [`Environment::step`] that reports bad input as an error instead of panicking.
-    fn try_step(&mut self, action: &[f64], obs: &mut [f64]) -> Result<Step, SimError>;
+    /// [`Environment::step`] that reports bad input as an error instead of panicking. The default
+    /// (for test doubles) just calls `step`; [`SuiteEnv`] checks everything `step` would panic on.
+    fn try_step(&mut self, action: &[f64], obs: &mut [f64]) -> Result<Step, SimError> {
+        Ok(self.step(action, obs))
+    }
 }
 
 /// The task names, `<domain>-<task>`.
