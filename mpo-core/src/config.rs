@@ -26,7 +26,7 @@ pub struct MpoConfig {
     pub actor_lr: f32,
     /// Critic Adam step size.
     pub critic_lr: f32,
-    /// Adam step size of the M-step multipliers (in their softplus parameterisation).
+    /// Adam step size of the M-step multipliers (on `ln alpha`).
     pub dual_lr: f32,
     /// Policy gradient steps per update (the report's inner iterations).
     pub mstep_iters: u32,
@@ -42,10 +42,11 @@ pub struct MpoConfig {
     pub std_floor: f32,
     /// Initial temperature (the solver then warm-starts from the last one).
     pub eta_init: f32,
-    /// Initial multiplier of the mean constraint (the report gives none; Acme starts at 10).
+    /// Initial multiplier of the mean constraint (the report gives none; Acme's values: start
+    /// strict, and the log parameterisation relaxes it by orders of magnitude within about a
+    /// hundred updates where the bound allows).
     pub alpha_mean_init: f32,
-    /// Initial multiplier of the covariance constraint (Acme starts at 1000: the covariance
-    /// bound is tight and must hold from the first update).
+    /// Initial multiplier of the covariance constraint (Acme: 1000; the bound is tight).
     pub alpha_cov_init: f32,
     /// E-step tolerance: stop when `|KL - eps| <= tol * eps`.
     pub estep_tol: f64,

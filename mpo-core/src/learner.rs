@@ -14,7 +14,9 @@
 //!    over the actor (multipliers held constant: a stop-gradient), and
 //!    `alpha (eps - KL)` over the multipliers (KLs held constant), with
 //!    `KL_mu = KL(pi_old || N(mu_theta, Sigma_old))` and `KL_Sigma = KL(pi_old || N(mu_old,
-//!    Sigma_theta))`. The multipliers are `softplus(raw)`, so they stay `>= 0`.
+//!    Sigma_theta))`. The multipliers are `exp(raw)` (clamped to `[e^-18, e^18]`), so they stay
+//!    `>= 0` and Adam changes them by a factor per step rather than by an amount: a multiplier
+//!    that must grow (or shrink) by orders of magnitude gets there in tens of updates.
 //! 4. Every `target_period` updates the target networks take the online parameters.
 //!
 //! "Old" is the target policy throughout. Shapes: `B` batch, `M` E-step samples per state,
@@ -30,9 +32,10 @@ use crate::adam::{AdamConfig, AdamState, adam_step};
 use crate::config::{ConfigError, MpoConfig};
 use crate::critic::{Critic, CriticTape};
 use crate::estep::{solve_temperature, weights};
-use crate::gaussian::{
-    Gaussian, GaussianGrad, head_backward, kl_per_dim_grad, sigmoid, softplus, softplus_inverse,
-};
+use crate::gaussian::{Gaussian, GaussianGrad, head_backward, kl_per_dim_grad};
+
+/// Clamp of `ln alpha` (Acme clamps the duals below at `exp(-18)`).
+const LOG_ALPHA_MAX: f32 = 18.0;
 use crate::params::{Params, clip_global_norm};
 use crate::rng::Rng;
 
@@ -69,9 +72,9 @@ impl<const B: usize, const OBS: usize, const ACT: usize> Batch<B, OBS, ACT> {
 pub struct Duals<const ACT: usize> {
     /// E-step temperature `eta*` of the last update (the warm start of the next).
     pub eta: f32,
-    /// `alpha_mu = softplus(raw)` per dimension (all equal without per-dimension KL).
+    /// `alpha_mu = exp(raw)` per dimension (all equal without per-dimension KL).
     pub alpha_mean_raw: [f32; ACT],
-    /// `alpha_Sigma = softplus(raw)` per dimension.
+    /// `alpha_Sigma = exp(raw)` per dimension.
     pub alpha_cov_raw: [f32; ACT],
     /// Adam moments of the raw multipliers.
     pub moments: [[f32; ACT]; 4],
@@ -82,11 +85,11 @@ pub struct Duals<const ACT: usize> {
 impl<const ACT: usize> Duals<ACT> {
     /// `alpha_mu` per dimension.
     pub fn alpha_mean(&self) -> [f32; ACT] {
-        self.alpha_mean_raw.map(softplus)
+        self.alpha_mean_raw.map(libm::expf)
     }
     /// `alpha_Sigma` per dimension.
     pub fn alpha_cov(&self) -> [f32; ACT] {
-        self.alpha_cov_raw.map(softplus)
+        self.alpha_cov_raw.map(libm::expf)
     }
 }
 
@@ -312,8 +315,8 @@ impl<
         l.critic_opt = AdamState::default();
         l.duals = Duals {
             eta: cfg.eta_init,
-            alpha_mean_raw: [softplus_inverse(cfg.alpha_mean_init); ACT],
-            alpha_cov_raw: [softplus_inverse(cfg.alpha_cov_init); ACT],
+            alpha_mean_raw: [libm::logf(cfg.alpha_mean_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX); ACT],
+            alpha_cov_raw: [libm::logf(cfg.alpha_cov_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX); ACT],
             moments: [[0.0; ACT]; 4],
             opt: AdamState::default(),
         };
@@ -607,8 +610,8 @@ impl<
             &mut live.actor_v,
         );
 
-        // Multipliers: d/d alpha of alpha (eps - KL) is eps - KL; through the softplus it is
-        // scaled by sigmoid(raw). Without per-dimension KL every entry sees the total.
+        // Multipliers: d/d alpha of alpha (eps - KL) is eps - KL; through alpha = exp(raw) it is
+        // scaled by alpha. Without per-dimension KL every entry sees the total.
         let d = &mut live.duals;
         let mut g_mean = [0f32; ACT];
         let mut g_cov = [0f32; ACT];
@@ -621,14 +624,17 @@ impl<
             } else {
                 (cfg.eps_mean - km_tot, cfg.eps_cov - kc_tot)
             };
-            g_mean[k] = dm * sigmoid(d.alpha_mean_raw[k]);
-            g_cov[k] = dc * sigmoid(d.alpha_cov_raw[k]);
+            g_mean[k] = dm * alpha_mean[k];
+            g_cov[k] = dc * alpha_cov[k];
         }
         let dcfg = AdamConfig::with_lr(cfg.dual_lr);
         d.opt.advance(&dcfg);
         let [m0, v0, m1, v1] = &mut d.moments;
         d.opt.apply(&dcfg, &mut d.alpha_mean_raw, &g_mean, m0, v0);
         d.opt.apply(&dcfg, &mut d.alpha_cov_raw, &g_cov, m1, v1);
+        for r in d.alpha_mean_raw.iter_mut().chain(d.alpha_cov_raw.iter_mut()) {
+            *r = r.clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
+        }
 
         let bd = (B * ACT) as f32;
         stats.kl_mean = km_tot;
