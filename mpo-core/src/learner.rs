@@ -315,8 +315,10 @@ impl<
         l.critic_opt = AdamState::default();
         l.duals = Duals {
             eta: cfg.eta_init,
-            alpha_mean_raw: [libm::logf(cfg.alpha_mean_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX); ACT],
-            alpha_cov_raw: [libm::logf(cfg.alpha_cov_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX); ACT],
+            alpha_mean_raw: [libm::logf(cfg.alpha_mean_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
+                ACT],
+            alpha_cov_raw: [libm::logf(cfg.alpha_cov_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
+                ACT],
             moments: [[0.0; ACT]; 4],
             opt: AdamState::default(),
         };
@@ -632,7 +634,11 @@ impl<
         let [m0, v0, m1, v1] = &mut d.moments;
         d.opt.apply(&dcfg, &mut d.alpha_mean_raw, &g_mean, m0, v0);
         d.opt.apply(&dcfg, &mut d.alpha_cov_raw, &g_cov, m1, v1);
-        for r in d.alpha_mean_raw.iter_mut().chain(d.alpha_cov_raw.iter_mut()) {
+        for r in d
+            .alpha_mean_raw
+            .iter_mut()
+            .chain(d.alpha_cov_raw.iter_mut())
+        {
             *r = r.clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
         }
 

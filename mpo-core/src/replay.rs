@@ -47,6 +47,69 @@ pub struct Replay<const CAP: usize, const OBS: usize, const ACT: usize> {
     current_episode: u64,
 }
 
+/// The ring's bookkeeping (see [`Replay::raw`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReplayCounters {
+    /// Slot the next insertion writes.
+    pub head: u64,
+    /// Number of valid transitions.
+    pub len: u64,
+    /// Transitions ever inserted.
+    pub inserted: u64,
+    /// Id of the current episode.
+    pub current_episode: u64,
+}
+
+/// Counters that no sequence of insertions could produce.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InvalidCounters;
+
+impl core::fmt::Display for InvalidCounters {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("inconsistent replay counters")
+    }
+}
+
+impl core::error::Error for InvalidCounters {}
+
+/// Borrowed columns of a [`Replay`] in slot order, with its counters.
+pub struct RawReplay<'a, const CAP: usize, const OBS: usize, const ACT: usize> {
+    /// States.
+    pub obs: &'a [[f32; OBS]; CAP],
+    /// Actions.
+    pub action: &'a [[f32; ACT]; CAP],
+    /// Next states.
+    pub next_obs: &'a [[f32; OBS]; CAP],
+    /// Rewards.
+    pub reward: &'a [f32; CAP],
+    /// Discounts.
+    pub discount: &'a [f32; CAP],
+    /// Behaviour log-probabilities.
+    pub behaviour_log_prob: &'a [f32; CAP],
+    /// Episode ids.
+    pub episode: &'a [u64; CAP],
+    /// Ring counters.
+    pub counters: ReplayCounters,
+}
+
+/// Mutable columns of a [`Replay`] in slot order.
+pub struct RawReplayMut<'a, const CAP: usize, const OBS: usize, const ACT: usize> {
+    /// States.
+    pub obs: &'a mut [[f32; OBS]; CAP],
+    /// Actions.
+    pub action: &'a mut [[f32; ACT]; CAP],
+    /// Next states.
+    pub next_obs: &'a mut [[f32; OBS]; CAP],
+    /// Rewards.
+    pub reward: &'a mut [f32; CAP],
+    /// Discounts.
+    pub discount: &'a mut [f32; CAP],
+    /// Behaviour log-probabilities.
+    pub behaviour_log_prob: &'a mut [f32; CAP],
+    /// Episode ids.
+    pub episode: &'a mut [u64; CAP],
+}
+
 /// Why a sequence could not be drawn.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
@@ -192,6 +255,61 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
     /// Behaviour log-probability of the transition at age index `k`.
     pub fn behaviour_log_prob(&self, k: usize) -> f32 {
         self.behaviour_log_prob[self.slot(k)]
+    }
+
+    /// Every stored column in slot order (not age order) with the ring's counters: what a
+    /// host checkpoint must save to restore the buffer bit for bit.
+    pub fn raw(&self) -> RawReplay<'_, CAP, OBS, ACT> {
+        RawReplay {
+            obs: &self.obs,
+            action: &self.action,
+            next_obs: &self.next_obs,
+            reward: &self.reward,
+            discount: &self.discount,
+            behaviour_log_prob: &self.behaviour_log_prob,
+            episode: &self.episode,
+            counters: self.counters(),
+        }
+    }
+
+    /// The ring's counters.
+    pub fn counters(&self) -> ReplayCounters {
+        ReplayCounters {
+            head: self.head,
+            len: self.len,
+            inserted: self.inserted,
+            current_episode: self.current_episode,
+        }
+    }
+
+    /// Mutable columns in slot order (to restore a checkpoint; pair with
+    /// [`Replay::set_counters`]).
+    pub fn raw_columns_mut(&mut self) -> RawReplayMut<'_, CAP, OBS, ACT> {
+        RawReplayMut {
+            obs: &mut self.obs,
+            action: &mut self.action,
+            next_obs: &mut self.next_obs,
+            reward: &mut self.reward,
+            discount: &mut self.discount,
+            behaviour_log_prob: &mut self.behaviour_log_prob,
+            episode: &mut self.episode,
+        }
+    }
+
+    /// Restores the counters; rejects values no sequence of pushes could produce
+    /// (`head >= CAP`, `len > CAP`, `len > inserted`, or a non-full ring whose head is not
+    /// its length).
+    pub fn set_counters(&mut self, c: ReplayCounters) -> Result<(), InvalidCounters> {
+        let cap = CAP as u64;
+        let full = c.len == cap;
+        if c.head >= cap || c.len > cap || c.len > c.inserted || (!full && c.head != c.len) {
+            return Err(InvalidCounters);
+        }
+        self.head = c.head;
+        self.len = c.len;
+        self.inserted = c.inserted;
+        self.current_episode = c.current_episode;
+        Ok(())
     }
 }
 

@@ -27,7 +27,9 @@ fn retrace_matches_the_direct_sum_on_random_chains() {
         let mut v = vec![0f32; l];
         let mut r = vec![0f32; l];
         let mut lr = vec![0f32; l];
-        let d: Vec<f32> = (0..l).map(|_| if rng.uniform() < 0.15 { 0.0 } else { 1.0 }).collect();
+        let d: Vec<f32> = (0..l)
+            .map(|_| if rng.uniform() < 0.15 { 0.0 } else { 1.0 })
+            .collect();
         rng.fill_normal(&mut q);
         rng.fill_normal(&mut v);
         rng.fill_normal(&mut r);
@@ -37,7 +39,11 @@ fn retrace_matches_the_direct_sum_on_random_chains() {
         retrace(&q, &v, &r, &d, &lr, 0.95, &mut out);
         for t in 0..l {
             let want = direct(&q, &v, &r, &d, &c, 0.95, t);
-            assert!((out[t] as f64 - want).abs() < 1e-4 * (1.0 + want.abs()), "trial {trial} t {t}: {} vs {want}", out[t]);
+            assert!(
+                (out[t] as f64 - want).abs() < 1e-4 * (1.0 + want.abs()),
+                "trial {trial} t {t}: {} vs {want}",
+                out[t]
+            );
         }
     }
 }
@@ -49,18 +55,35 @@ fn retrace_recovers_known_values_on_a_deterministic_chain() {
     // equals the true value whatever the traces; with Q = 0 and V = 0 and on-policy traces
     // (c = 1) Retrace is the Monte Carlo return, which is the same number.
     let gamma = 0.9f32;
-    let truth: Vec<f32> = (0..5).map(|t| (0..5 - t).map(|k| gamma.powi(k as i32)).sum()).collect();
+    let truth: Vec<f32> = (0..5)
+        .map(|t| (0..5 - t).map(|k| gamma.powi(k as i32)).sum())
+        .collect();
     let r = [1f32; 5];
     let d = [1f32, 1.0, 1.0, 1.0, 0.0];
-    let v_exact: Vec<f32> = (0..5).map(|t| if t + 1 < 5 { truth[t + 1] } else { 0.0 }).collect();
+    let v_exact: Vec<f32> = (0..5)
+        .map(|t| if t + 1 < 5 { truth[t + 1] } else { 0.0 })
+        .collect();
     let mut out = [0f32; 5];
-    retrace(&truth, &v_exact, &r, &d, &[-0.7, 0.3, -2.0, 0.0, -0.1], gamma, &mut out);
+    retrace(
+        &truth,
+        &v_exact,
+        &r,
+        &d,
+        &[-0.7, 0.3, -2.0, 0.0, -0.1],
+        gamma,
+        &mut out,
+    );
     for t in 0..5 {
         assert!((out[t] - truth[t]).abs() < 1e-5, "exact values, t {t}");
     }
     retrace(&[0.0; 5], &[0.0; 5], &r, &d, &[0.0; 5], gamma, &mut out);
     for t in 0..5 {
-        assert!((out[t] - truth[t]).abs() < 1e-5, "Monte Carlo, t {t}: {} vs {}", out[t], truth[t]);
+        assert!(
+            (out[t] - truth[t]).abs() < 1e-5,
+            "Monte Carlo, t {t}: {} vs {}",
+            out[t],
+            truth[t]
+        );
     }
     // Fully off-policy traces (c = 0) reduce Retrace to one-step TD targets.
     retrace(&[0.0; 5], &[2.0; 5], &r, &d, &[-100.0; 5], gamma, &mut out);
@@ -75,7 +98,11 @@ fn nstep_transition_equals_its_definition() {
     let gamma = 0.99f32;
     let rewards = [0.5f32, -1.0, 2.0, 0.25, 1.0];
     let (r, m) = nstep(&rewards, &[1.0; 5], gamma);
-    let want: f32 = rewards.iter().enumerate().map(|(k, x)| gamma.powi(k as i32) * x).sum();
+    let want: f32 = rewards
+        .iter()
+        .enumerate()
+        .map(|(k, x)| gamma.powi(k as i32) * x)
+        .sum();
     assert!((r - want).abs() < 1e-6);
     assert!((m - gamma.powi(5)).abs() < 1e-7);
 }
