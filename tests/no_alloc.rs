@@ -128,6 +128,22 @@ fn acting_and_training_steps_do_not_allocate() {
     });
     assert_eq!(n, 0, "a training step allocated {n} times");
 
+    // A full learner update (policy evaluation, E-step, M-step) at hopper size, after the
+    // first update has run (nothing is allocated lazily either).
+    let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H, H, 64, 20, 20>> =
+        bytemuck::zeroed_box();
+    learner.init(mpo_core::config::MpoConfig::REPORT, 3).unwrap();
+    for round in 0..2 {
+        rng.fill_normal(learner.batch.obs.as_flattened_mut());
+        rng.fill_normal(learner.batch.action.as_flattened_mut());
+        rng.fill_normal(learner.batch.next_obs.as_flattened_mut());
+        rng.fill_normal(&mut learner.batch.reward);
+        learner.batch.bootstrap = [0.99; 64];
+        let (r, n) = count_allocations(|| learner.update());
+        r.unwrap();
+        assert_eq!(n, 0, "learner update {round} allocated {n} times");
+    }
+
     // The counter works: a Vec does allocate.
     let (_, n) = count_allocations(|| std::hint::black_box(vec![1u8; 16]));
     assert_eq!(n, 1);
