@@ -129,54 +129,59 @@ pub fn accumulate<const I: usize, const O: usize>(
     let n_full = x.len() / TILE_N * TILE_N;
     let (x_full, x_rest) = x.split_at(n_full);
     let (y_full, y_rest) = y.split_at_mut(n_full);
-    for (xs, ys) in x_full
-        .chunks_exact(TILE_N)
-        .zip(y_full.chunks_exact_mut(TILE_N))
-    {
-        accumulate_tile(xs, w, ys);
+    // Output strips outermost: one strip of weights (I x 16 floats, 16 KiB at I = 256) stays
+    // in L1 while every sample tile passes over it, instead of streaming all of W from L2
+    // once per sample tile.
+    let o_full = O / TILE_O * TILE_O;
+    let mut o0 = 0;
+    while o0 < o_full {
+        for (xs, ys) in x_full
+            .chunks_exact(TILE_N)
+            .zip(y_full.chunks_exact_mut(TILE_N))
+        {
+            accumulate_tile(xs, w, ys, o0);
+        }
+        o0 += TILE_O;
+    }
+    if o_full < O {
+        for (xs, ys) in x_full.iter().zip(y_full.iter_mut()) {
+            for i in 0..I {
+                let xi = xs[i];
+                for o in o_full..O {
+                    ys[o] += xi * w[i][o];
+                }
+            }
+        }
     }
     for (xr, yr) in x_rest.iter().zip(y_rest) {
         accumulate_one(xr, w, yr);
     }
 }
 
-/// Four samples at a time: 4 x 16 accumulators stay in registers while the inputs stream.
+/// Four samples by sixteen outputs from `o0`: 4 x 16 accumulators stay in registers while
+/// the inputs stream.
 #[inline(always)]
 fn accumulate_tile<const I: usize, const O: usize>(
     x: &[[f32; I]],
     w: &[[f32; O]; I],
     y: &mut [[f32; O]],
+    o0: usize,
 ) {
-    let o_full = O / TILE_O * TILE_O;
-    let mut o0 = 0;
-    while o0 < o_full {
-        let mut acc = [[0f32; TILE_O]; TILE_N];
-        for s in 0..TILE_N {
-            acc[s].copy_from_slice(&y[s][o0..o0 + TILE_O]);
-        }
-        for i in 0..I {
-            let wr: &[f32; TILE_O] = w[i][o0..o0 + TILE_O].try_into().unwrap();
-            for s in 0..TILE_N {
-                let xs = x[s][i];
-                for l in 0..TILE_O {
-                    acc[s][l] += xs * wr[l];
-                }
-            }
-        }
-        for s in 0..TILE_N {
-            y[s][o0..o0 + TILE_O].copy_from_slice(&acc[s]);
-        }
-        o0 += TILE_O;
+    let mut acc = [[0f32; TILE_O]; TILE_N];
+    for s in 0..TILE_N {
+        acc[s].copy_from_slice(&y[s][o0..o0 + TILE_O]);
     }
-    if o_full < O {
+    for i in 0..I {
+        let wr: &[f32; TILE_O] = w[i][o0..o0 + TILE_O].try_into().unwrap();
         for s in 0..TILE_N {
-            for i in 0..I {
-                let xs = x[s][i];
-                for o in o_full..O {
-                    y[s][o] += xs * w[i][o];
-                }
+            let xs = x[s][i];
+            for l in 0..TILE_O {
+                acc[s][l] += xs * wr[l];
             }
         }
+    }
+    for s in 0..TILE_N {
+        y[s][o0..o0 + TILE_O].copy_from_slice(&acc[s]);
     }
 }
 
