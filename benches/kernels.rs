@@ -5,6 +5,8 @@
 //! Run: `cargo bench --bench kernels` (release profile, the workspace's x86-64-v3 target).
 //! Prints a Markdown table; figures are medians of 9 timed repetitions.
 
+#![allow(clippy::needless_range_loop)]
+
 use std::hint::black_box;
 use std::time::Instant;
 

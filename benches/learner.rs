@@ -7,6 +7,8 @@
 //! `ITERS` updates each, after warm-up updates) with FLOPs per update (network arithmetic:
 //! see `Learner::flops_per_update`) and the achieved GFLOP/s.
 
+#![allow(clippy::needless_range_loop)]
+
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -22,7 +24,10 @@ fn bench<const OBS: usize, const ACT: usize, const TRI: usize, const M: usize, c
     mstep_iters: u32,
 ) {
     let mut l: Box<Learner<OBS, ACT, TRI, H, H, B, M, N>> = bytemuck::zeroed_box();
-    let cfg = MpoConfig { mstep_iters, ..MpoConfig::REPORT };
+    let cfg = MpoConfig {
+        mstep_iters,
+        ..MpoConfig::REPORT
+    };
     l.init(cfg, 0).unwrap();
     let mut rng = Rng::seed_from_u64(1);
     let mut refill = |l: &mut Learner<OBS, ACT, TRI, H, H, B, M, N>| {
@@ -51,7 +56,8 @@ fn bench<const OBS: usize, const ACT: usize, const TRI: usize, const M: usize, c
         .collect();
     times.sort_by(f64::total_cmp);
     let secs = times[2];
-    let flops = Learner::<OBS, ACT, TRI, H, H, B, M, N>::flops_per_update(mstep_iters as usize) as f64;
+    let flops =
+        Learner::<OBS, ACT, TRI, H, H, B, M, N>::flops_per_update(mstep_iters as usize) as f64;
     println!(
         "| {label} | {M} | {N} | {mstep_iters} | {:.1} | {:.2} | {:.2} | {:.1} |",
         1.0 / secs,
@@ -62,7 +68,9 @@ fn bench<const OBS: usize, const ACT: usize, const TRI: usize, const M: usize, c
 }
 
 fn main() {
-    println!("| dimensions | E-step samples M | next-action samples N | M-step iterations | updates/s | ms/update | GFLOP/update | GFLOP/s |");
+    println!(
+        "| dimensions | E-step samples M | next-action samples N | M-step iterations | updates/s | ms/update | GFLOP/update | GFLOP/s |"
+    );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     bench::<5, 1, 1, 20, 20>("cartpole 5/1", 1);
     bench::<15, 4, 10, 20, 20>("hopper 15/4", 1);

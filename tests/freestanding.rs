@@ -6,6 +6,8 @@
 //! workspace's x86-64-v3 target): same seed, same bits. Then proves the harness has teeth:
 //! the same binary with a feature that uses `alloc`, or one that links `std`, fails to build.
 
+#![allow(clippy::needless_range_loop)]
+
 use std::path::PathBuf;
 use std::process::Command;
 

@@ -3,6 +3,8 @@
 //! The counting allocator counts per thread; every measured closure runs the real routines at
 //! the hopper size (observation 15, action 4, hidden 256-256, batch 256).
 
+#![allow(clippy::needless_range_loop)]
+
 use mpo_core::actor::{Actor, ActorTape};
 use mpo_core::adam::{AdamConfig, AdamState, adam_step};
 use mpo_core::critic::{Critic, CriticTape};
@@ -132,7 +134,9 @@ fn acting_and_training_steps_do_not_allocate() {
     // first update has run (nothing is allocated lazily either).
     let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H, H, 64, 20, 20>> =
         bytemuck::zeroed_box();
-    learner.init(mpo_core::config::MpoConfig::REPORT, 3).unwrap();
+    learner
+        .init(mpo_core::config::MpoConfig::REPORT, 3)
+        .unwrap();
     for round in 0..2 {
         rng.fill_normal(learner.batch.obs.as_flattened_mut());
         rng.fill_normal(learner.batch.action.as_flattened_mut());

@@ -9,14 +9,15 @@
 //!    weights `q_ij = softmax_j(Q_ij / eta*)`.
 //! 3. **M-step** (paper eq. 9-10 with the decoupled constraints of ALGORITHM-NOTES.md item 1),
 //!    `mstep_iters` times: minimise
-//!    `-1/B sum_ij q_ij [ln N(a_ij; mu_theta, Sigma_old) + ln N(a_ij; mu_old, Sigma_theta)]
-//!     + alpha_mu KL_mu + alpha_Sigma KL_Sigma`
-//!    over the actor (multipliers held constant: a stop-gradient), and
+//!    the sum of `alpha_mu KL_mu + alpha_Sigma KL_Sigma` and the weighted negative
+//!    log-likelihood `(1/B) sum_ij q_ij [ln N(a_ij; mu_theta, Sigma_old) + ln N(a_ij; mu_old, Sigma_theta)]`
+//!    (with a minus sign) over the actor (multipliers held constant: a stop-gradient), and
 //!    `alpha (eps - KL)` over the multipliers (KLs held constant), with
-//!    `KL_mu = KL(pi_old || N(mu_theta, Sigma_old))` and `KL_Sigma = KL(pi_old || N(mu_old,
-//!    Sigma_theta))`. The multipliers are `exp(raw)` (clamped to `[e^-18, e^18]`), so they stay
-//!    `>= 0` and Adam changes them by a factor per step rather than by an amount: a multiplier
-//!    that must grow (or shrink) by orders of magnitude gets there in tens of updates.
+//!    `KL_mu = KL(pi_old || N(mu_theta, Sigma_old))` and
+//!    `KL_Sigma = KL(pi_old || N(mu_old, Sigma_theta))`. The multipliers are `exp(raw)`
+//!    (clamped to `[e^-18, e^18]`), so they stay `>= 0` and Adam changes them by a factor per
+//!    step rather than by an amount: a multiplier that must grow (or shrink) by orders of
+//!    magnitude gets there in tens of updates.
 //! 4. Every `target_period` updates the target networks take the online parameters.
 //!
 //! "Old" is the target policy throughout. Shapes: `B` batch, `M` E-step samples per state,
@@ -372,7 +373,7 @@ impl<
         match result {
             Ok(stats) => {
                 self.updates += 1;
-                if self.updates % self.cfg.target_period as u64 == 0 {
+                if self.updates.is_multiple_of(self.cfg.target_period as u64) {
                     self.target_actor.copy_from(&self.live.actor);
                     self.target_critic.copy_from(&self.live.critic);
                 }

@@ -1,6 +1,8 @@
 //! E-step: the temperature solver against brute-force minimisation of the dual, the KL
 //! constraint, and invariance of the weights to the scale and offset of Q.
 
+#![allow(clippy::needless_range_loop)]
+
 use mpo_core::estep::{dual, solve_temperature, weights};
 use mpo_core::rng::Rng;
 

@@ -1,5 +1,7 @@
 //! The policy Gaussian against direct formulas, sample statistics and finite differences.
 
+#![allow(clippy::needless_range_loop)]
+
 use mpo_core::gaussian::{
     Gaussian, GaussianGrad, head_backward, kl_parts, kl_parts_grad, kl_per_dim, kl_per_dim_grad,
     tri_index,

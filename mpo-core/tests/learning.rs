@@ -4,6 +4,8 @@
 //! The loop is the product's in miniature: act with the sampled online policy, store in the
 //! ring-buffer replay, sample uniform batches, update, evaluate the mean action.
 
+#![allow(clippy::needless_range_loop)]
+
 use mpo_core::config::MpoConfig;
 use mpo_core::learner::Learner;
 use mpo_core::params::fingerprint;

@@ -1,6 +1,8 @@
 //! M-step: the decoupled KL constraints hold on average, measured between the policy before
 //! and after each update; a tiny covariance bound keeps the covariance (almost) still.
 
+#![allow(clippy::needless_range_loop)]
+
 use mpo_core::config::MpoConfig;
 use mpo_core::gaussian::{Gaussian, kl_parts};
 use mpo_core::learner::Learner;

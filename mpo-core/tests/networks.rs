@@ -1,6 +1,8 @@
 //! Hand-written backward passes against central finite differences, for every parameter of
 //! both networks, at sizes that exercise every tile and remainder path of the kernels.
 
+#![allow(clippy::needless_range_loop)]
+
 use bytemuck::Zeroable;
 use mpo_core::actor::{Actor, ActorTape};
 use mpo_core::critic::{Critic, CriticTape};

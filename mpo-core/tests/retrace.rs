@@ -1,6 +1,8 @@
 //! Retrace targets against a direct evaluation of the paper's sum (eq. 11), and n-step
 //! transitions against their definition.
 
+#![allow(clippy::needless_range_loop)]
+
 use mpo_core::evaluation::{nstep, retrace};
 use mpo_core::rng::Rng;
 
@@ -56,7 +58,7 @@ fn retrace_recovers_known_values_on_a_deterministic_chain() {
     // (c = 1) Retrace is the Monte Carlo return, which is the same number.
     let gamma = 0.9f32;
     let truth: Vec<f32> = (0..5)
-        .map(|t| (0..5 - t).map(|k| gamma.powi(k as i32)).sum())
+        .map(|t| (0..5 - t).map(|k| gamma.powi(k)).sum())
         .collect();
     let r = [1f32; 5];
     let d = [1f32, 1.0, 1.0, 1.0, 0.0];
