@@ -1,1 +1,15 @@
-//! Host-side library of the `mpo` command.
+//! Host side of `mpo`: the training loop, evaluation, checkpoints, metrics and plots.
+//!
+//! The `mpo` binary only parses flags and maps errors to exit codes; everything it does is a
+//! function of [`commands`], so tests and other programs can call it directly.
+#![deny(missing_docs)]
+
+pub mod checkpoint;
+pub mod cli;
+pub mod commands;
+pub mod eval;
+pub mod metrics;
+pub mod plot;
+pub mod settings;
+pub mod tasks;
+pub mod train;

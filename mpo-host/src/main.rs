@@ -1,1 +1,54 @@
-fn main() {}
+//! `mpo`: parses flags, runs the command from the library, maps errors to exit codes
+//! (0 success, 1 error, 2 usage, 130 interrupted with a checkpoint written).
+
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
+use clap::Parser;
+use mpo_host::cli::{Cli, Command};
+use mpo_host::commands;
+
+static INTERRUPT: AtomicBool = AtomicBool::new(false);
+
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Train(args) => {
+            ctrlc::set_handler(|| {
+                if INTERRUPT.swap(true, Ordering::SeqCst) {
+                    eprintln!("\nsecond Ctrl-C: exiting now; the last checkpoint is kept");
+                    std::process::exit(130);
+                }
+                eprintln!("\nCtrl-C: finishing the current episode, then writing a checkpoint (Ctrl-C again to exit at once)");
+            })
+            .context("installing the Ctrl-C handler")?;
+            let summary = commands::train(&args, &INTERRUPT)?;
+            println!("{}", serde_json::to_string(&summary)?);
+            Ok(if summary.interrupted {
+                ExitCode::from(130)
+            } else {
+                ExitCode::SUCCESS
+            })
+        }
+        Command::Eval(args) => {
+            let s = commands::eval(&args)?;
+            println!("{}", serde_json::to_string(&s)?);
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Tasks => {
+            print!("{}", commands::tasks_listing());
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}

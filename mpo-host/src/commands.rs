@@ -1,0 +1,290 @@
+//! The subcommands, from parsed flags to results: configuration layering, resume checks,
+//! dispatch through the task table.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use serde::Serialize;
+
+use crate::checkpoint::{self, CheckpointError, Verified};
+use crate::cli::{EvalArgs, TrainArgs};
+use crate::eval::{evaluate, mean_std};
+use crate::settings::{self, Settings, SettingsError};
+use crate::tasks::{self, Row, RowVisitor, UnknownTask};
+use crate::train::{Summary, TrainError, TrainRequest, TrainVisitor};
+
+/// Everything a command can fail with.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// Configuration.
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// Task not in the table.
+    #[error(transparent)]
+    UnknownTask(#[from] UnknownTask),
+    /// Checkpoint.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// Training.
+    #[error(transparent)]
+    Train(#[from] TrainError),
+    /// Simulator.
+    #[error("simulator: {0}")]
+    Sim(#[from] sim_bridge::SimError),
+    /// The run directory already holds a run.
+    #[error(
+        "{0} already holds a checkpoint: continue it with `mpo train --resume {0}`, or choose another --out"
+    )]
+    OutExists(String),
+}
+
+fn str_value(t: &toml::Table, k: &str) -> Option<String> {
+    t.get(k).and_then(|v| v.as_str()).map(str::to_string)
+}
+
+/// The layers above the defaults: the file, `--set`s, then explicit flags.
+fn layers(args: &TrainArgs) -> Result<Vec<(String, toml::Table)>, Error> {
+    let mut out = Vec::new();
+    if let Some(p) = &args.config {
+        out.push((p.display().to_string(), settings::read_table(p)?));
+    }
+    for s in &args.set {
+        out.push((format!("--set {s}"), settings::parse_set(s)?));
+    }
+    let mut flags = toml::Table::new();
+    if let Some(t) = &args.task {
+        flags.insert("task".into(), t.clone().into());
+    }
+    if let Some(n) = &args.net {
+        flags.insert("net".into(), n.clone().into());
+    }
+    if let Some(s) = args.seed {
+        flags.insert("seed".into(), (s as i64).into());
+    }
+    if let Some(s) = args.steps {
+        flags.insert("steps".into(), (s as i64).into());
+    }
+    out.push(("flags".into(), flags));
+    Ok(out)
+}
+
+fn apply(base: &toml::Table, layers: &[(String, toml::Table)]) -> Result<toml::Table, Error> {
+    let mut t = base.clone();
+    for (origin, l) in layers {
+        settings::overlay(&mut t, l, origin, "")?;
+    }
+    Ok(t)
+}
+
+/// The table row's defaults as settings.
+pub fn defaults(row: &Row) -> Settings {
+    Settings {
+        task: row.task.into(),
+        net: row.net.into(),
+        seed: 0,
+        steps: row.steps,
+        schedule: row.schedule,
+        mpo: row.mpo,
+        network: Some(row.sizes),
+    }
+}
+
+fn episode_steps(task: &str) -> Result<u64, Error> {
+    Ok(sim_bridge::task_spec(task)?.episode_steps as u64)
+}
+
+/// Resolves the configuration of `mpo train` (fresh or resumed) and where it writes.
+pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Verified>), Error> {
+    let layers = layers(args)?;
+    if let Some(dir) = &args.resume {
+        let v = checkpoint::open(dir)?;
+        let base = v.meta.settings.to_table();
+        let merged = apply(&base, &layers)?;
+        let diffs = settings::differences(&base, &merged, "", &["steps"]);
+        if !diffs.is_empty() {
+            return Err(SettingsError::Mismatch {
+                dir: v.dir.display().to_string(),
+                differences: diffs,
+            }
+            .into());
+        }
+        let s = Settings::from_table(merged, "resumed configuration")?;
+        let row = tasks::row(&s.task, &s.net)?;
+        if v.meta.sizes != row.sizes {
+            return Err(SettingsError::Mismatch {
+                dir: v.dir.display().to_string(),
+                differences: vec![format!(
+                    "network sizes are {:?} in the checkpoint, {:?} in this build's task table",
+                    v.meta.sizes, row.sizes
+                )],
+            }
+            .into());
+        }
+        s.validate(episode_steps(&s.task)?, &row.sizes)?;
+        let run_dir = if v.dir.file_name().is_some_and(|n| n == checkpoint::SUBDIR) {
+            v.dir
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_else(|| dir.clone())
+        } else {
+            dir.clone()
+        };
+        let out = args.out.clone().unwrap_or(run_dir);
+        return Ok((s, out, Some(v)));
+    }
+    let mut task = tasks::DEFAULT_TASK.to_string();
+    let mut net = tasks::DEFAULT_NET.to_string();
+    for (_, l) in &layers {
+        task = str_value(l, "task").unwrap_or(task);
+        net = str_value(l, "net").unwrap_or(net);
+    }
+    let row = tasks::row(&task, &net)?;
+    let merged = apply(&defaults(row).to_table(), &layers)?;
+    let s = Settings::from_table(merged, "configuration")?;
+    s.validate(episode_steps(&s.task)?, &row.sizes)?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("runs/{}-seed{}", s.task, s.seed)));
+    if checkpoint::locate(&out).is_ok() {
+        return Err(Error::OutExists(out.display().to_string()));
+    }
+    Ok((s, out, None))
+}
+
+/// `mpo train`.
+pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error> {
+    let (settings, out, resume) = resolve_train(args)?;
+    let (task, net) = (settings.task.clone(), settings.net.clone());
+    let req = TrainRequest {
+        settings,
+        out,
+        resume,
+        progress: !args.no_progress,
+        interrupt,
+    };
+    Ok(tasks::visit(&task, &net, TrainVisitor(req))??)
+}
+
+/// What `mpo eval` prints.
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct EvalSummary {
+    /// Task.
+    pub task: String,
+    /// Environment steps of the checkpoint.
+    pub checkpoint_env_steps: u64,
+    /// Evaluation seed.
+    pub seed: u32,
+    /// Episodes.
+    pub episodes: u32,
+    /// Mean return.
+    pub return_mean: f64,
+    /// Population standard deviation of the returns.
+    pub return_std: f64,
+    /// Every episode's return.
+    pub returns: Vec<f64>,
+}
+
+struct EvalVisitor {
+    v: Verified,
+    seed: u32,
+    episodes: u32,
+}
+
+impl RowVisitor for EvalVisitor {
+    type Out = Result<EvalSummary, Error>;
+    fn visit<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+        const B: usize,
+        const M: usize,
+        const N: usize,
+        const CAP: usize,
+    >(
+        self,
+        row: &'static Row,
+    ) -> Self::Out {
+        let m = &self.v.meta;
+        if m.sizes != row.sizes {
+            return Err(SettingsError::Mismatch {
+                dir: self.v.dir.display().to_string(),
+                differences: vec![format!(
+                    "network sizes are {:?} in the checkpoint, {:?} in this build's task table",
+                    m.sizes, row.sizes
+                )],
+            }
+            .into());
+        }
+        let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H1, H2, B, M, N>> =
+            bytemuck::zeroed_box();
+        learner
+            .init(m.settings.mpo.to_config(), m.settings.seed as u64)
+            .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))?;
+        self.v.load_networks(&mut learner)?;
+        let returns = evaluate(&learner, &m.settings.task, self.seed, self.episodes)?;
+        let (return_mean, return_std) = mean_std(&returns);
+        Ok(EvalSummary {
+            task: m.settings.task.clone(),
+            checkpoint_env_steps: m.env_steps,
+            seed: self.seed,
+            episodes: self.episodes,
+            return_mean,
+            return_std,
+            returns,
+        })
+    }
+}
+
+/// `mpo eval`.
+pub fn eval(args: &EvalArgs) -> Result<EvalSummary, Error> {
+    let v = checkpoint::open(&args.checkpoint)?;
+    let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
+    let seed = args.seed.unwrap_or(v.meta.settings.seed);
+    if args.episodes == 0 {
+        return Err(SettingsError::Invalid("--episodes must be at least 1".into()).into());
+    }
+    tasks::visit(
+        &task,
+        &net,
+        EvalVisitor {
+            v,
+            seed,
+            episodes: args.episodes,
+        },
+    )?
+}
+
+/// `mpo tasks`: one line per Control Suite task.
+pub fn tasks_listing() -> String {
+    let mut s = format!(
+        "{:<18} {:>4} {:>4}  trainable (net: hidden, batch B, M, N, replay)\n",
+        "task", "obs", "act"
+    );
+    for &name in sim_bridge::TASKS {
+        let (obs, act) = sim_bridge::task_spec(name)
+            .map(|t| (t.obs_dim.to_string(), t.act_dim.to_string()))
+            .unwrap_or(("?".into(), "?".into()));
+        let rows: Vec<String> = tasks::ROWS
+            .iter()
+            .filter(|r| r.task == name)
+            .map(|r| {
+                let z = &r.sizes;
+                format!(
+                    "{}: {}-{}, B {}, M {}, N {}, {}",
+                    r.net, z.h1, z.h2, z.batch, z.m, z.n, z.replay_capacity
+                )
+            })
+            .collect();
+        let rows = if rows.is_empty() {
+            "no (not in the task table)".to_string()
+        } else {
+            rows.join("; ")
+        };
+        s.push_str(&format!("{name:<18} {obs:>4} {act:>4}  {rows}\n"));
+    }
+    s
+}

@@ -1,0 +1,195 @@
+//! One metrics row per evaluation, written as `metrics.csv` and `metrics.jsonl`.
+//!
+//! Learner statistics in a row are means over the updates since the previous row (a single
+//! update's values are too noisy to read); the accumulator is part of the checkpoint, so a
+//! resumed run writes the same rows as an uninterrupted one (except the wall-clock columns).
+
+use std::io::Write;
+use std::path::Path;
+
+use mpo_core::learner::UpdateStats;
+use serde::{Deserialize, Serialize};
+
+/// Names of the learner statistics, in column order.
+pub const STAT_NAMES: [&str; 22] = [
+    "critic_loss",
+    "target_mean",
+    "q_mean",
+    "q_min",
+    "q_max",
+    "eta",
+    "estep_kl",
+    "estep_iterations",
+    "alpha_mean",
+    "alpha_cov",
+    "kl_mean",
+    "kl_cov",
+    "kl_mean_rel",
+    "kl_cov_rel",
+    "policy_nll",
+    "actor_grad_norm",
+    "critic_grad_norm",
+    "mu_mean",
+    "mu_abs_mean",
+    "std_mean",
+    "std_min",
+    "std_max",
+];
+
+/// The statistics as numbers in [`STAT_NAMES`] order.
+pub fn stat_values(s: &UpdateStats) -> [f64; 22] {
+    [
+        s.critic_loss as f64,
+        s.target_mean as f64,
+        s.q_mean as f64,
+        s.q_min as f64,
+        s.q_max as f64,
+        s.eta as f64,
+        s.estep_kl as f64,
+        s.estep_iterations as f64,
+        s.alpha_mean as f64,
+        s.alpha_cov as f64,
+        s.kl_mean as f64,
+        s.kl_cov as f64,
+        s.kl_mean_rel as f64,
+        s.kl_cov_rel as f64,
+        s.policy_nll as f64,
+        s.actor_grad_norm as f64,
+        s.critic_grad_norm as f64,
+        s.mu_mean as f64,
+        s.mu_abs_mean as f64,
+        s.std_mean as f64,
+        s.std_min as f64,
+        s.std_max as f64,
+    ]
+}
+
+/// The first non-finite statistic, if any.
+pub fn first_non_finite(s: &UpdateStats) -> Option<(&'static str, f64)> {
+    STAT_NAMES
+        .iter()
+        .zip(stat_values(s))
+        .find(|(_, v)| !v.is_finite())
+        .map(|(n, v)| (*n, v))
+}
+
+/// Running sums of the statistics since the last row.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StatsAccumulator {
+    /// Sums in [`STAT_NAMES`] order.
+    pub sums: Vec<f64>,
+    /// Updates summed.
+    pub count: u64,
+}
+
+impl StatsAccumulator {
+    /// Adds one update's statistics (no allocation once the sums exist).
+    pub fn add(&mut self, s: &UpdateStats) {
+        if self.sums.len() != STAT_NAMES.len() {
+            self.sums = vec![0.0; STAT_NAMES.len()];
+        }
+        for (acc, v) in self.sums.iter_mut().zip(stat_values(s)) {
+            *acc += v;
+        }
+        self.count += 1;
+    }
+
+    /// The means (NaN before the first update) and a reset.
+    pub fn take_means(&mut self) -> Vec<f64> {
+        let out = if self.count == 0 {
+            vec![f64::NAN; STAT_NAMES.len()]
+        } else {
+            self.sums.iter().map(|s| s / self.count as f64).collect()
+        };
+        self.sums.iter_mut().for_each(|s| *s = 0.0);
+        self.count = 0;
+        out
+    }
+}
+
+/// One evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MetricsRow {
+    /// Environment steps so far.
+    pub env_steps: u64,
+    /// Learner updates so far.
+    pub updates: u64,
+    /// Training episodes completed.
+    pub episodes: u64,
+    /// Wall-clock seconds of training so far (summed over resumed segments).
+    pub wall_s: f64,
+    /// Mean evaluation return (mean action).
+    pub eval_return_mean: f64,
+    /// Standard deviation of the evaluation returns (population).
+    pub eval_return_std: f64,
+    /// Environment steps per second since the previous row.
+    pub env_steps_per_s: f64,
+    /// Updates per second since the previous row.
+    pub updates_per_s: f64,
+    /// Mean learner statistics since the previous row, in [`STAT_NAMES`] order (NaN, written
+    /// as `null`/empty, before learning starts).
+    pub stats: Vec<Option<f64>>,
+}
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map(|x| x.to_string()).unwrap_or_default()
+}
+
+/// Writes `metrics.csv` and `metrics.jsonl` in `dir` from all rows (rewritten whole, so a
+/// resumed run never leaves rows of an abandoned future behind).
+pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
+    let mut csv = String::from(
+        "env_steps,updates,episodes,wall_s,eval_return_mean,eval_return_std,env_steps_per_s,updates_per_s",
+    );
+    for n in STAT_NAMES {
+        csv.push(',');
+        csv.push_str(n);
+    }
+    csv.push('\n');
+    let mut jsonl = String::new();
+    for r in rows {
+        csv.push_str(&format!(
+            "{},{},{},{:.3},{},{},{:.1},{:.1}",
+            r.env_steps,
+            r.updates,
+            r.episodes,
+            r.wall_s,
+            r.eval_return_mean,
+            r.eval_return_std,
+            r.env_steps_per_s,
+            r.updates_per_s
+        ));
+        for v in &r.stats {
+            csv.push(',');
+            csv.push_str(&fmt_opt(*v));
+        }
+        csv.push('\n');
+        let mut obj = serde_json::Map::new();
+        obj.insert("env_steps".into(), r.env_steps.into());
+        obj.insert("updates".into(), r.updates.into());
+        obj.insert("episodes".into(), r.episodes.into());
+        obj.insert("wall_s".into(), r.wall_s.into());
+        obj.insert("eval_return_mean".into(), r.eval_return_mean.into());
+        obj.insert("eval_return_std".into(), r.eval_return_std.into());
+        obj.insert("env_steps_per_s".into(), r.env_steps_per_s.into());
+        obj.insert("updates_per_s".into(), r.updates_per_s.into());
+        for (n, v) in STAT_NAMES.iter().zip(&r.stats) {
+            obj.insert((*n).into(), (*v).into());
+        }
+        jsonl.push_str(&serde_json::Value::Object(obj).to_string());
+        jsonl.push('\n');
+    }
+    write_atomic(&dir.join("metrics.csv"), csv.as_bytes())?;
+    write_atomic(&dir.join("metrics.jsonl"), jsonl.as_bytes())
+}
+
+/// Writes a file through a temporary and a rename, so a reader (or a crash) never sees half.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("tmp");
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)
+}

@@ -1,0 +1,332 @@
+//! The resolved configuration of a run: task-table defaults, then a `--config` TOML file, then
+//! flags, each layer overriding single keys of the one below.
+//!
+//! Layers are merged as TOML tables before anything is deserialised, so a file or a `--set`
+//! flag may name any subset of keys, an unknown key is an error (a typo never silently
+//! falls back to a default), and a resumed run can be compared key by key with its
+//! checkpoint. Learner hyperparameters are kept as `f64` here so `config.toml` shows the
+//! values as written (`3e-4`, not `0.0003000000142492354`); they become the learner's `f32`
+//! by one rounding, identically for fresh and resumed runs.
+
+use mpo_core::config::MpoConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::tasks::Sizes;
+
+/// Everything that determines a run (with the task table's sizes, everything that
+/// determines its bits).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Settings {
+    /// Control Suite task, e.g. `cartpole-balance`.
+    pub task: String,
+    /// Network variant of the task's table row (`default`, or `tiny` for fast tests).
+    pub net: String,
+    /// Seed of the networks, the collector and the training environment.
+    pub seed: u32,
+    /// Total environment steps (a multiple of the episode length).
+    pub steps: u64,
+    /// When to act, learn, evaluate.
+    pub schedule: Schedule,
+    /// Learner hyperparameters.
+    pub mpo: MpoSettings,
+    /// The row's compile-time sizes; written for readers, checked when read back (they
+    /// cannot be changed by configuration: they are the learner's type).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub network: Option<Sizes>,
+}
+
+/// Acting, learning and evaluation schedule, in environment steps.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Schedule {
+    /// Steps with uniformly random actions in [-1, 1] before the policy acts and learning
+    /// starts.
+    pub warmup_steps: u64,
+    /// Environment steps between learning phases.
+    pub update_interval: u64,
+    /// Learner updates per learning phase (so `updates_per_interval / update_interval`
+    /// updates per environment step).
+    pub updates_per_interval: u64,
+    /// Environment steps between evaluations and checkpoints (a multiple of the episode
+    /// length, so both happen at episode boundaries).
+    pub eval_interval: u64,
+    /// Evaluation episodes, each on a fresh environment with its own evaluation seed.
+    pub eval_episodes: u32,
+}
+
+/// [`MpoConfig`] as written in configuration files (see the module doc for the `f64`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[allow(missing_docs)]
+pub struct MpoSettings {
+    pub eps_eta: f64,
+    pub eps_mean: f64,
+    pub eps_cov: f64,
+    pub per_dim_kl: bool,
+    pub gamma: f64,
+    pub actor_lr: f64,
+    pub critic_lr: f64,
+    pub dual_lr: f64,
+    pub mstep_iters: u32,
+    pub actor_clip: f64,
+    pub critic_clip: f64,
+    pub target_period: u32,
+    pub init_std: f64,
+    pub std_floor: f64,
+    pub eta_init: f64,
+    pub alpha_mean_init: f64,
+    pub alpha_cov_init: f64,
+    pub estep_tol: f64,
+    pub estep_max_iter: u32,
+}
+
+impl MpoSettings {
+    /// The report's values (`MpoConfig::REPORT`), written as decimals.
+    pub const REPORT: Self = Self {
+        eps_eta: 0.1,
+        eps_mean: 0.1,
+        eps_cov: 1e-4,
+        per_dim_kl: false,
+        gamma: 0.99,
+        actor_lr: 3e-4,
+        critic_lr: 3e-4,
+        dual_lr: 1e-2,
+        mstep_iters: 5,
+        actor_clip: 0.1,
+        critic_clip: 40.0,
+        target_period: 100,
+        init_std: 0.5,
+        std_floor: 1e-4,
+        eta_init: 1.0,
+        alpha_mean_init: 10.0,
+        alpha_cov_init: 1000.0,
+        estep_tol: 1e-3,
+        estep_max_iter: 50,
+    };
+
+    /// The learner's configuration (one `f64 -> f32` rounding per field).
+    pub fn to_config(&self) -> MpoConfig {
+        MpoConfig {
+            eps_eta: self.eps_eta as f32,
+            eps_mean: self.eps_mean as f32,
+            eps_cov: self.eps_cov as f32,
+            per_dim_kl: self.per_dim_kl,
+            gamma: self.gamma as f32,
+            actor_lr: self.actor_lr as f32,
+            critic_lr: self.critic_lr as f32,
+            dual_lr: self.dual_lr as f32,
+            mstep_iters: self.mstep_iters,
+            actor_clip: self.actor_clip as f32,
+            critic_clip: self.critic_clip as f32,
+            target_period: self.target_period,
+            init_std: self.init_std as f32,
+            std_floor: self.std_floor as f32,
+            eta_init: self.eta_init as f32,
+            alpha_mean_init: self.alpha_mean_init as f32,
+            alpha_cov_init: self.alpha_cov_init as f32,
+            estep_tol: self.estep_tol,
+            estep_max_iter: self.estep_max_iter,
+        }
+    }
+}
+
+/// Why a configuration could not be resolved.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SettingsError {
+    /// The file could not be read.
+    #[error("cannot read the configuration file {path}: {source}")]
+    Read {
+        /// File.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Not TOML, or a value of the wrong type.
+    #[error("{origin}: {message}")]
+    Parse {
+        /// File or flag.
+        origin: String,
+        /// Parser message.
+        message: String,
+    },
+    /// A key that no setting has.
+    #[error("{origin}: unknown setting `{key}` (see config.toml of any run for every key)")]
+    UnknownKey {
+        /// File or flag.
+        origin: String,
+        /// Dotted key.
+        key: String,
+    },
+    /// A value out of range.
+    #[error("invalid configuration: {0}")]
+    Invalid(String),
+    /// On resume: the given configuration differs from the checkpoint's.
+    #[error(
+        "the configuration does not match the checkpoint in {dir}: {}; resume with the checkpoint's configuration (only `steps` may change)",
+        .differences.join("; ")
+    )]
+    Mismatch {
+        /// Checkpoint directory.
+        dir: String,
+        /// `key: checkpoint A, given B` per differing key.
+        differences: Vec<String>,
+    },
+}
+
+/// Reads a TOML file into a table.
+pub fn read_table(path: &std::path::Path) -> Result<toml::Table, SettingsError> {
+    let text = std::fs::read_to_string(path).map_err(|source| SettingsError::Read {
+        path: path.display().to_string(),
+        source,
+    })?;
+    text.parse::<toml::Table>()
+        .map_err(|e| SettingsError::Parse {
+            origin: path.display().to_string(),
+            message: e.to_string(),
+        })
+}
+
+/// Parses `--set key=value` (value in TOML syntax; a bare word is taken as a string) into a
+/// nested table.
+pub fn parse_set(assignment: &str) -> Result<toml::Table, SettingsError> {
+    let origin = format!("--set {assignment}");
+    let Some((key, value)) = assignment.split_once('=') else {
+        return Err(SettingsError::Parse {
+            origin,
+            message: "expected KEY=VALUE, e.g. mpo.actor_lr=1e-4".into(),
+        });
+    };
+    let parsed = format!("v = {}", value.trim())
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(value.trim().to_string()));
+    let mut table = toml::Table::new();
+    let parts: Vec<&str> = key.trim().split('.').collect();
+    let mut cur = &mut table;
+    for (i, p) in parts.iter().enumerate() {
+        if i + 1 == parts.len() {
+            cur.insert((*p).to_string(), parsed.clone());
+        } else {
+            cur = cur
+                .entry((*p).to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                .as_table_mut()
+                .expect("fresh table");
+        }
+    }
+    Ok(table)
+}
+
+/// Writes every key of `over` into `base`, recursing into tables; a key `base` lacks is an
+/// error.
+pub fn overlay(
+    base: &mut toml::Table,
+    over: &toml::Table,
+    origin: &str,
+    prefix: &str,
+) -> Result<(), SettingsError> {
+    for (k, v) in over {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match (base.get_mut(k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => overlay(b, o, origin, &key)?,
+            (Some(slot), _) => *slot = v.clone(),
+            (None, _) => {
+                return Err(SettingsError::UnknownKey {
+                    origin: origin.to_string(),
+                    key,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `key: a, b` for every leaf where the two tables differ (keys in `ignore` skipped).
+pub fn differences(a: &toml::Table, b: &toml::Table, prefix: &str, ignore: &[&str]) -> Vec<String> {
+    let mut out = Vec::new();
+    for (k, va) in a {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        if ignore.contains(&key.as_str()) {
+            continue;
+        }
+        match (va, b.get(k)) {
+            (toml::Value::Table(ta), Some(toml::Value::Table(tb))) => {
+                out.extend(differences(ta, tb, &key, ignore))
+            }
+            (_, Some(vb)) if vb == va => {}
+            (_, Some(vb)) => out.push(format!("`{key}` is {va} in the checkpoint, {vb} here")),
+            (_, None) => out.push(format!("`{key}` missing here")),
+        }
+    }
+    out
+}
+
+impl Settings {
+    /// As a TOML table.
+    pub fn to_table(&self) -> toml::Table {
+        toml::Table::try_from(self).expect("settings serialise to TOML")
+    }
+
+    /// From a merged table (type errors name `origin`).
+    pub fn from_table(t: toml::Table, origin: &str) -> Result<Self, SettingsError> {
+        toml::Value::Table(t)
+            .try_into()
+            .map_err(|e: toml::de::Error| SettingsError::Parse {
+                origin: origin.to_string(),
+                message: e.to_string(),
+            })
+    }
+
+    /// Range checks beyond the types (episode-aligned schedule, learner validation).
+    pub fn validate(&self, episode_steps: u64, sizes: &Sizes) -> Result<(), SettingsError> {
+        let bad = |m: String| Err(SettingsError::Invalid(m));
+        if let Some(n) = &self.network
+            && n != sizes
+        {
+            return bad(format!(
+                "[network] is {n:?} but the task table's `{}`/`{}` row is {sizes:?}: sizes are the learner's type and come from the table (choose another `net`)",
+                self.task, self.net
+            ));
+        }
+        if self.steps == 0 || self.steps % episode_steps != 0 {
+            return bad(format!(
+                "steps = {} must be a positive multiple of the episode length ({episode_steps}): checkpoints are taken at episode boundaries",
+                self.steps
+            ));
+        }
+        let s = &self.schedule;
+        if s.eval_interval == 0 || s.eval_interval % episode_steps != 0 {
+            return bad(format!(
+                "schedule.eval_interval = {} must be a positive multiple of the episode length ({episode_steps})",
+                s.eval_interval
+            ));
+        }
+        if s.update_interval == 0 {
+            return bad("schedule.update_interval must be at least 1".into());
+        }
+        if s.eval_episodes == 0 {
+            return bad("schedule.eval_episodes must be at least 1".into());
+        }
+        if s.warmup_steps < sizes.batch as u64 {
+            return bad(format!(
+                "schedule.warmup_steps = {} must be at least the batch size {}",
+                s.warmup_steps, sizes.batch
+            ));
+        }
+        self.mpo
+            .to_config()
+            .validate()
+            .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))
+    }
+}

@@ -1,0 +1,611 @@
+//! The training loop: act with the sampled policy, store transitions, learn at the configured
+//! ratio, evaluate and checkpoint at episode boundaries.
+//!
+//! Random streams (all xoshiro256++, all in the checkpoint): the learner's own (network
+//! initialisation, then every update's samples), the collector's (warm-up actions and
+//! exploration noise) and the replay sampler's (batch indices). The last two are split from
+//! one root seeded from the run's seed, so acting and learning never share draws and the
+//! ratio of updates to steps can change without changing what the collector does.
+//!
+//! Nothing in [`Trainer::collect`] (the act-and-learn loop) allocates: buffers are sized once.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use mpo_core::learner::{Learner, UpdateError};
+use mpo_core::replay::{Replay, Transition};
+use mpo_core::rng::Rng;
+use serde::Serialize;
+use sim_bridge::{Environment, SimError};
+
+use crate::checkpoint::{self, CheckpointError, Counters, Meta, Verified};
+use crate::eval::{evaluate, mean_std};
+use crate::metrics::{self, MetricsRow, StatsAccumulator};
+use crate::settings::{Schedule, Settings};
+use crate::tasks::{Row, RowVisitor};
+
+/// Mixed into the run's seed for the collector and sampler root (the learner uses the seed
+/// itself), so the streams differ.
+const STREAM_SALT: u64 = 0x6d70_6f2d_686f_7374;
+
+/// Why training stopped early.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TrainError {
+    /// Configuration.
+    #[error(transparent)]
+    Settings(#[from] crate::settings::SettingsError),
+    /// Reading or writing a checkpoint.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// The simulator (missing MuJoCo, a physics error).
+    #[error("simulator: {0}")]
+    Sim(#[from] SimError),
+    /// A learner update failed; its changes were undone and no checkpoint was written for it.
+    #[error(
+        "learner update {update} (at environment step {env_steps}) failed: {what}. Training stopped; {}",
+        match .last_checkpoint { Some(s) => format!("the last good checkpoint (environment step {s}) is kept in {}", .dir.display()), None => "no checkpoint had been written yet".to_string() }
+    )]
+    NonFinite {
+        /// Updates completed before the failing one.
+        update: u64,
+        /// Environment steps taken.
+        env_steps: u64,
+        /// What was non-finite.
+        what: String,
+        /// Environment step of the last checkpoint written by this process or resumed from.
+        last_checkpoint: Option<u64>,
+        /// Checkpoint directory.
+        dir: PathBuf,
+    },
+    /// Output files.
+    #[error("{path}: {source}")]
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Sizes of the task table and the simulator disagree (a bug in the table).
+    #[error("internal: {0}")]
+    Internal(String),
+}
+
+/// The one-line JSON printed when a run ends.
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct Summary {
+    /// Task.
+    pub task: String,
+    /// Seed.
+    pub seed: u32,
+    /// Environment steps taken.
+    pub env_steps: u64,
+    /// Learner updates.
+    pub updates: u64,
+    /// Last evaluation's mean return.
+    pub eval_return_mean: f64,
+    /// Last evaluation's standard deviation.
+    pub eval_return_std: f64,
+    /// Training wall clock (summed over resumed segments).
+    pub wall_s: f64,
+    /// sha256 of the final online actor and critic parameters (little-endian f32, tensor
+    /// order).
+    pub params_sha256: String,
+    /// Run directory.
+    pub out: String,
+    /// True when Ctrl-C ended the run early (at an episode boundary, checkpoint written).
+    pub interrupted: bool,
+}
+
+/// What `mpo train` was asked to do.
+pub struct TrainRequest<'a> {
+    /// Resolved settings.
+    pub settings: Settings,
+    /// Run directory.
+    pub out: PathBuf,
+    /// Checkpoint to continue from.
+    pub resume: Option<Verified>,
+    /// Show the progress bar (it also hides itself when stderr is not a terminal).
+    pub progress: bool,
+    /// Set by the Ctrl-C handler: finish the current episode, checkpoint, stop.
+    pub interrupt: &'a AtomicBool,
+}
+
+/// Why one step of [`Trainer::collect`] failed.
+#[derive(Debug)]
+pub enum StepError {
+    /// The simulator refused the step.
+    Sim(SimError),
+    /// A learner update was rejected (or reported a non-finite statistic).
+    Update(String),
+}
+
+/// The act-and-learn state of a run with the row's types.
+pub struct Trainer<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+    const B: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
+> {
+    /// The learner.
+    pub learner: Box<Learner<OBS, ACT, TRI, H1, H2, B, M, N>>,
+    /// Experience.
+    pub replay: Box<Replay<CAP, OBS, ACT>>,
+    env: Box<dyn Environment>,
+    /// Exploration and warm-up actions.
+    pub collector: Rng,
+    /// Batch indices.
+    pub sampler: Rng,
+    /// Environment steps taken.
+    pub env_steps: u64,
+    /// Episodes completed.
+    pub episodes: u64,
+    in_episode: bool,
+    obs64: [f64; OBS],
+    next64: [f64; OBS],
+    act64: [f64; ACT],
+    idx: Box<[usize; B]>,
+    /// Learner statistics since the last metrics row.
+    pub stats: StatsAccumulator,
+    schedule: Schedule,
+    gamma: f32,
+}
+
+impl<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+    const B: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
+> Trainer<OBS, ACT, TRI, H1, H2, B, M, N, CAP>
+{
+    /// A fresh run (networks initialised from the seed, empty replay), or the state of
+    /// `resume`.
+    pub fn new(settings: &Settings, resume: Option<&Verified>) -> Result<Self, TrainError> {
+        let spec = sim_bridge::task_spec(&settings.task)?;
+        if spec.obs_dim != OBS || spec.act_dim != ACT {
+            return Err(TrainError::Internal(format!(
+                "task table row {} has OBS {OBS} ACT {ACT}, simulator says {} {}",
+                settings.task, spec.obs_dim, spec.act_dim
+            )));
+        }
+        let mut learner: Box<Learner<OBS, ACT, TRI, H1, H2, B, M, N>> = bytemuck::zeroed_box();
+        learner
+            .init(settings.mpo.to_config(), settings.seed as u64)
+            .map_err(|e| crate::settings::SettingsError::Invalid(format!("mpo: {e}")))?;
+        let mut replay: Box<Replay<CAP, OBS, ACT>> = bytemuck::zeroed_box();
+        let mut root = Rng::seed_from_u64(settings.seed as u64 ^ STREAM_SALT);
+        let mut collector = root.split();
+        let mut sampler = root.split();
+        let mut env = sim_bridge::make(&settings.task, settings.seed)?;
+        let (mut env_steps, mut episodes, mut stats) = (0, 0, StatsAccumulator::default());
+        let mut obs64 = [0f64; OBS];
+        if let Some(v) = resume {
+            v.restore(&mut learner, &mut replay)?;
+            let m = &v.meta;
+            let bad = |what: &str| CheckpointError::Corrupt {
+                path: v.dir.join("meta.json"),
+                message: format!("bad {what}"),
+            };
+            collector = Rng::from_state(
+                checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?,
+            );
+            sampler = Rng::from_state(
+                checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?,
+            );
+            env_steps = m.env_steps;
+            episodes = m.episodes;
+            stats = m.stats.clone();
+            // The environment's RandomState advances once per reset: replay the resets.
+            for _ in 0..episodes {
+                env.reset(&mut obs64);
+            }
+        }
+        if stats.sums.len() != metrics::STAT_NAMES.len() {
+            // Sized once here, so `collect` never allocates.
+            stats.sums = vec![0.0; metrics::STAT_NAMES.len()];
+        }
+        Ok(Self {
+            learner,
+            replay,
+            env,
+            collector,
+            sampler,
+            env_steps,
+            episodes,
+            in_episode: false,
+            obs64,
+            next64: [0.0; OBS],
+            act64: [0.0; ACT],
+            idx: Box::new([0; B]),
+            stats,
+            schedule: settings.schedule,
+            gamma: settings.mpo.to_config().gamma,
+        })
+    }
+
+    /// True between episodes (where checkpoints may be taken).
+    pub fn at_episode_boundary(&self) -> bool {
+        !self.in_episode
+    }
+
+    /// Takes `steps` environment steps, storing each transition and running the learner
+    /// updates the schedule calls for. Allocates nothing.
+    pub fn collect(&mut self, steps: u64) -> Result<(), StepError> {
+        let mut obs = [0f32; OBS];
+        let mut act = [0f32; ACT];
+        for _ in 0..steps {
+            if !self.in_episode {
+                self.env.reset(&mut self.obs64);
+                self.replay.begin_episode();
+                self.in_episode = true;
+            }
+            for (o, x) in obs.iter_mut().zip(&self.obs64) {
+                *o = *x as f32;
+            }
+            let log_prob = if self.env_steps < self.schedule.warmup_steps {
+                for a in act.iter_mut() {
+                    *a = self.collector.uniform_range(-1.0, 1.0);
+                }
+                -(ACT as f32) * core::f32::consts::LN_2
+            } else {
+                self.learner
+                    .sample_action(&obs, &mut self.collector, &mut act)
+            };
+            // Every Control Suite actuator's range is [-1, 1]; the replay keeps the sample.
+            for (o, a) in self.act64.iter_mut().zip(&act) {
+                *o = a.clamp(-1.0, 1.0) as f64;
+            }
+            let step = self
+                .env
+                .try_step(&self.act64, &mut self.next64)
+                .map_err(StepError::Sim)?;
+            let mut t = Transition {
+                obs,
+                action: act,
+                reward: step.reward as f32,
+                next_obs: [0.0; OBS],
+                discount: step.discount as f32,
+                behaviour_log_prob: log_prob,
+            };
+            for (o, x) in t.next_obs.iter_mut().zip(&self.next64) {
+                *o = *x as f32;
+            }
+            self.replay.push(&t);
+            core::mem::swap(&mut self.obs64, &mut self.next64);
+            self.env_steps += 1;
+            if step.last {
+                self.in_episode = false;
+                self.episodes += 1;
+            }
+            let s = &self.schedule;
+            if self.env_steps >= s.warmup_steps && self.env_steps % s.update_interval == 0 {
+                for _ in 0..s.updates_per_interval {
+                    self.update().map_err(StepError::Update)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// One learner update on a uniformly sampled batch.
+    fn update(&mut self) -> Result<(), String> {
+        self.replay
+            .sample_indices(&mut self.sampler, &mut self.idx[..])
+            .map_err(|e| e.to_string())?;
+        let b = &mut self.learner.batch;
+        self.replay.gather(
+            &self.idx[..],
+            &mut b.obs,
+            &mut b.action,
+            &mut b.reward,
+            &mut b.next_obs,
+            &mut b.bootstrap,
+        );
+        for x in b.bootstrap.iter_mut() {
+            *x *= self.gamma;
+        }
+        match self.learner.update() {
+            Ok(stats) => {
+                if let Some((name, v)) = metrics::first_non_finite(&stats) {
+                    return Err(format!("learner statistic {name} = {v}"));
+                }
+                self.stats.add(&stats);
+                Ok(())
+            }
+            Err(UpdateError::NonFinite(w)) => {
+                Err(format!("non-finite value in {w:?} (the update was undone)"))
+            }
+            Err(e) => Err(e.to_string()),
+        }
+    }
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Runs `mpo train` for the row's types (see [`crate::tasks::visit`]).
+pub struct TrainVisitor<'a>(pub TrainRequest<'a>);
+
+impl RowVisitor for TrainVisitor<'_> {
+    type Out = Result<Summary, TrainError>;
+    fn visit<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+        const B: usize,
+        const M: usize,
+        const N: usize,
+        const CAP: usize,
+    >(
+        self,
+        row: &'static Row,
+    ) -> Self::Out {
+        run::<OBS, ACT, TRI, H1, H2, B, M, N, CAP>(row, self.0)
+    }
+}
+
+fn log(pb: &ProgressBar, msg: &str) {
+    if pb.is_hidden() {
+        eprintln!("{msg}");
+    } else {
+        pb.println(msg);
+    }
+}
+
+#[allow(clippy::too_many_lines)]
+fn run<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+    const B: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
+>(
+    row: &'static Row,
+    req: TrainRequest<'_>,
+) -> Result<Summary, TrainError> {
+    let settings = req.settings;
+    let out = req.out;
+    let mut t =
+        Trainer::<OBS, ACT, TRI, H1, H2, B, M, N, CAP>::new(&settings, req.resume.as_ref())?;
+    let (mut metrics_rows, wall0, mut last_checkpoint) = match &req.resume {
+        Some(v) => (
+            v.meta.metrics.clone(),
+            v.meta.wall_s,
+            Some(v.meta.env_steps),
+        ),
+        None => (Vec::new(), 0.0, None),
+    };
+    std::fs::create_dir_all(&out).map_err(io_err(&out))?;
+    let mut resolved = settings.clone();
+    resolved.network = Some(row.sizes);
+    let cfg_path = out.join("config.toml");
+    let text = format!(
+        "# Resolved configuration of this run (task table defaults, --config, flags).\n\
+         # `mpo train --config config.toml --out NEW` repeats it; [network] is fixed by the task table.\n{}",
+        toml::to_string(&resolved).expect("settings serialise")
+    );
+    metrics::write_atomic(&cfg_path, text.as_bytes()).map_err(io_err(&cfg_path))?;
+
+    let started = Instant::now();
+    let wall = |started: &Instant| wall0 + started.elapsed().as_secs_f64();
+    let pb = if req.progress {
+        ProgressBar::with_draw_target(Some(settings.steps), ProgressDrawTarget::stderr())
+    } else {
+        ProgressBar::hidden()
+    };
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} steps  {msg}  ETA {eta}",
+        )
+        .expect("template")
+        .progress_chars("=> "),
+    );
+    pb.set_position(t.env_steps);
+    let mut last_eval = metrics_rows
+        .last()
+        .map(|r: &MetricsRow| (r.eval_return_mean, r.eval_return_std))
+        .unwrap_or((f64::NAN, f64::NAN));
+    let (mut mark_t, mut mark_steps, mut mark_updates) =
+        (wall(&started), t.env_steps, t.learner.updates);
+
+    let evaluate_now = |t: &mut Trainer<OBS, ACT, TRI, H1, H2, B, M, N, CAP>,
+                        metrics_rows: &mut Vec<MetricsRow>,
+                        mark: (f64, u64, u64)|
+     -> Result<(f64, f64), TrainError> {
+        let returns = evaluate(
+            &t.learner,
+            &settings.task,
+            settings.seed,
+            settings.schedule.eval_episodes,
+        )?;
+        let (mean, std) = mean_std(&returns);
+        let now = wall(&started);
+        let dt = (now - mark.0).max(1e-9);
+        let stats = t
+            .stats
+            .take_means()
+            .into_iter()
+            .map(|v| v.is_finite().then_some(v))
+            .collect();
+        metrics_rows.push(MetricsRow {
+            env_steps: t.env_steps,
+            updates: t.learner.updates,
+            episodes: t.episodes,
+            wall_s: now,
+            eval_return_mean: mean,
+            eval_return_std: std,
+            env_steps_per_s: (t.env_steps - mark.1) as f64 / dt,
+            updates_per_s: (t.learner.updates - mark.2) as f64 / dt,
+            stats,
+        });
+        Ok((mean, std))
+    };
+
+    let write_outputs = |rows: &[MetricsRow], pb: &ProgressBar| -> Result<(), TrainError> {
+        metrics::write_all(&out, rows).map_err(io_err(&out))?;
+        if let Err(e) = crate::plot::write_curve(
+            &out.join("curve.png"),
+            &format!("MPO {} (seed {})", settings.task, settings.seed),
+            rows,
+        ) {
+            log(pb, &format!("warning: curve.png not written: {e}"));
+        }
+        Ok(())
+    };
+
+    let save = |t: &Trainer<OBS, ACT, TRI, H1, H2, B, M, N, CAP>,
+                rows: &[MetricsRow],
+                wall_s: f64|
+     -> Result<(), TrainError> {
+        let c = t.replay.counters();
+        let meta = Meta {
+            format: checkpoint::FORMAT.into(),
+            version: checkpoint::VERSION,
+            settings: settings.clone(),
+            sizes: row.sizes,
+            env_steps: t.env_steps,
+            episodes: t.episodes,
+            updates: t.learner.updates,
+            wall_s,
+            learner_rng: checkpoint::hex(&t.learner.rng_state),
+            collector_rng: checkpoint::hex(&t.collector.state()),
+            sampler_rng: checkpoint::hex(&t.sampler.state()),
+            replay: Counters {
+                head: c.head,
+                len: c.len,
+                inserted: c.inserted,
+                current_episode: c.current_episode,
+            },
+            stats: t.stats.clone(),
+            metrics: rows.to_vec(),
+            params_sha256: checkpoint::params_sha256(&t.learner.live.actor, &t.learner.live.critic),
+        };
+        checkpoint::save(&out, &t.learner, &t.replay, &meta)?;
+        Ok(())
+    };
+
+    if metrics_rows.is_empty() {
+        // The untrained policy: the curve's first point and the baseline of every later one.
+        last_eval = evaluate_now(
+            &mut t,
+            &mut metrics_rows,
+            (mark_t, mark_steps, mark_updates),
+        )?;
+        write_outputs(&metrics_rows, &pb)?;
+        log(
+            &pb,
+            &format!(
+                "step {:>8}  eval {:7.1} +- {:5.1}  (untrained)",
+                0, last_eval.0, last_eval.1
+            ),
+        );
+    }
+
+    let mut interrupted = false;
+    const CHUNK: u64 = 100;
+    while t.env_steps < settings.steps {
+        let to_eval =
+            settings.schedule.eval_interval - t.env_steps % settings.schedule.eval_interval;
+        let n = CHUNK.min(to_eval).min(settings.steps - t.env_steps);
+        if let Err(e) = t.collect(n) {
+            let dir = out.join(checkpoint::SUBDIR);
+            pb.abandon();
+            return Err(match e {
+                StepError::Sim(s) => TrainError::Sim(s),
+                StepError::Update(what) => TrainError::NonFinite {
+                    update: t.learner.updates,
+                    env_steps: t.env_steps,
+                    what,
+                    last_checkpoint,
+                    dir,
+                },
+            });
+        }
+        pb.set_position(t.env_steps);
+        let now = wall(&started);
+        if now - mark_t > 0.0 {
+            pb.set_message(format!(
+                "{:.0} steps/s  {:.0} upd/s  eval {:.1}",
+                (t.env_steps - mark_steps) as f64 / (now - mark_t),
+                (t.learner.updates - mark_updates) as f64 / (now - mark_t),
+                last_eval.0
+            ));
+        }
+        let at_eval =
+            t.env_steps % settings.schedule.eval_interval == 0 || t.env_steps == settings.steps;
+        if at_eval {
+            last_eval = evaluate_now(
+                &mut t,
+                &mut metrics_rows,
+                (mark_t, mark_steps, mark_updates),
+            )?;
+            let r = metrics_rows.last().expect("row");
+            log(
+                &pb,
+                &format!(
+                    "step {:>8}  eval {:7.1} +- {:5.1}  updates {:>7}  {:.0} steps/s  {:.1} upd/s  wall {:.0} s",
+                    r.env_steps,
+                    r.eval_return_mean,
+                    r.eval_return_std,
+                    r.updates,
+                    r.env_steps_per_s,
+                    r.updates_per_s,
+                    r.wall_s
+                ),
+            );
+            (mark_t, mark_steps, mark_updates) = (wall(&started), t.env_steps, t.learner.updates);
+            write_outputs(&metrics_rows, &pb)?;
+            save(&t, &metrics_rows, wall(&started))?;
+            last_checkpoint = Some(t.env_steps);
+        }
+        if req.interrupt.load(Ordering::SeqCst) && t.at_episode_boundary() {
+            if !at_eval {
+                save(&t, &metrics_rows, wall(&started))?;
+            }
+            log(
+                &pb,
+                &format!(
+                    "interrupted: checkpoint written at environment step {}",
+                    t.env_steps
+                ),
+            );
+            interrupted = true;
+            break;
+        }
+    }
+    pb.finish_and_clear();
+    Ok(Summary {
+        task: settings.task.clone(),
+        seed: settings.seed,
+        env_steps: t.env_steps,
+        updates: t.learner.updates,
+        eval_return_mean: last_eval.0,
+        eval_return_std: last_eval.1,
+        wall_s: wall(&started),
+        params_sha256: checkpoint::params_sha256(&t.learner.live.actor, &t.learner.live.critic),
+        out: out.display().to_string(),
+        interrupted,
+    })
+}
