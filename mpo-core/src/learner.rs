@@ -67,7 +67,42 @@ impl<const B: usize, const OBS: usize, const ACT: usize> Batch<B, OBS, ACT> {
     }
 }
 
-/// The M-step multipliers (softplus parameterisation) and the temperature, with the
+/// `B` replayed sequences of `L` consecutive transitions (position-major: `[k][n]` is
+/// transition `k` of sequence `n`), for [`Learner::update_retrace`].
+#[derive(Clone, Zeroable)]
+#[repr(C)]
+pub struct SequenceBatch<const B: usize, const L: usize, const OBS: usize, const ACT: usize> {
+    /// States `s_k`.
+    pub obs: [[[f32; OBS]; B]; L],
+    /// Actions `a_k` taken by the behaviour policy.
+    pub action: [[[f32; ACT]; B]; L],
+    /// Rewards `r_k`.
+    pub reward: [[f32; B]; L],
+    /// Next states `s_{k+1}`.
+    pub next_obs: [[[f32; OBS]; B]; L],
+    /// Environment discount after step `k` (0 at a terminal; 1 at a time-limit truncation).
+    pub discount: [[f32; B]; L],
+    /// `ln b(a_k | s_k)` of the behaviour policy, stored in the replay when acting.
+    pub behaviour_log_prob: [[f32; B]; L],
+}
+
+impl<const B: usize, const L: usize, const OBS: usize, const ACT: usize>
+    SequenceBatch<B, L, OBS, ACT>
+{
+    fn all_finite(&self) -> bool {
+        let f = |x: &[f32]| x.iter().all(|v| v.is_finite());
+        (0..L).all(|k| {
+            f(self.obs[k].as_flattened())
+                && f(self.action[k].as_flattened())
+                && f(self.next_obs[k].as_flattened())
+                && f(&self.reward[k])
+                && f(&self.discount[k])
+                && f(&self.behaviour_log_prob[k])
+        })
+    }
+}
+
+/// The M-step multipliers (log parameterisation) and the temperature, with the
 /// multipliers' Adam state.
 #[derive(Clone, Copy, Debug, PartialEq, Zeroable)]
 pub struct Duals<const ACT: usize> {
@@ -370,6 +405,14 @@ impl<
         let mut rng = Rng::from_state(self.rng_state);
         let result = self.update_inner(&mut rng);
         self.rng_state = rng.state();
+        self.finish(result)
+    }
+
+    /// Commits a successful update (counter, target copies) or undoes a failed one.
+    fn finish(
+        &mut self,
+        result: Result<UpdateStats, UpdateError>,
+    ) -> Result<UpdateStats, UpdateError> {
         match result {
             Ok(stats) => {
                 self.updates += 1;
@@ -389,6 +432,15 @@ impl<
     fn update_inner(&mut self, rng: &mut Rng) -> Result<UpdateStats, UpdateError> {
         let mut stats = UpdateStats::default();
         self.policy_evaluation(rng, &mut stats)?;
+        self.improve(rng, stats)
+    }
+
+    /// Policy improvement on the batch's states: the E-step, then the M-step iterations.
+    fn improve(
+        &mut self,
+        rng: &mut Rng,
+        mut stats: UpdateStats,
+    ) -> Result<UpdateStats, UpdateError> {
         self.e_step(rng, &mut stats)?;
         for _ in 0..self.cfg.mstep_iters {
             self.m_step(&mut stats)?;
@@ -408,13 +460,25 @@ impl<
         rng: &mut Rng,
         stats: &mut UpdateStats,
     ) -> Result<(), UpdateError> {
+        self.expected_next_value(rng);
+        let s = &mut self.s;
+        for n in 0..B {
+            s.target[n] = self.batch.reward[n] + self.batch.bootstrap[n] * s.target[n];
+        }
+        self.critic_step(stats)
+    }
+
+    /// `s.target[n] = mean_j Q_target(s'_n, a_j)` with `a_j ~ pi_target(s'_n)` for the batch's
+    /// next states.
+    fn expected_next_value(&mut self, rng: &mut Rng) {
         let (s, batch, cfg) = (&mut self.s, &self.batch, &self.cfg);
+        let x = &batch.next_obs;
         self.target_actor
-            .forward(&batch.next_obs, &mut s.atape, &mut s.mean, &mut s.chol);
+            .forward(x, &mut s.atape, &mut s.mean, &mut s.chol);
         for n in 0..B {
             s.old[n] = Gaussian::from_head(&s.mean[n], &s.chol[n], cfg.std_floor);
         }
-        self.target_critic.state_part(&batch.next_obs, &mut s.pre1);
+        self.target_critic.state_part(x, &mut s.pre1);
         s.target = [0.0; B];
         for _ in 0..N {
             for n in 0..B {
@@ -430,10 +494,17 @@ impl<
                 s.target[n] += s.q[n][0];
             }
         }
+        for n in 0..B {
+            s.target[n] /= N as f32;
+        }
+    }
+
+    /// One Adam step of the critic towards `s.target` on the batch's `(obs, action)`.
+    fn critic_step(&mut self, stats: &mut UpdateStats) -> Result<(), UpdateError> {
+        let (s, batch, cfg) = (&mut self.s, &self.batch, &self.cfg);
         let mut loss = 0.0;
         let mut tmean = 0.0;
         for n in 0..B {
-            s.target[n] = batch.reward[n] + batch.bootstrap[n] * (s.target[n] / N as f32);
             tmean += s.target[n];
         }
         let live = &mut self.live;
@@ -470,6 +541,80 @@ impl<
             &mut live.critic_v,
         );
         Ok(())
+    }
+
+    /// Retrace policy evaluation (paper eq. 11) on `B` replayed sequences of `L` transitions:
+    /// the critic regresses `Q(s_0, a_0)` on the Retrace target built from the target networks,
+    /// with traces `c_k = min(1, pi_target(a_k | s_k) / b(a_k | s_k))` from the stored
+    /// behaviour log-probabilities; then the E- and M-steps run on the first states `s_0`.
+    /// With `L = 1` this is exactly [`Learner::update`] on the first transitions.
+    pub fn update_retrace<const L: usize>(
+        &mut self,
+        seq: &SequenceBatch<B, L, OBS, ACT>,
+    ) -> Result<UpdateStats, UpdateError> {
+        const { assert!(L > 0, "sequences need at least one transition") };
+        if !seq.all_finite() {
+            return Err(UpdateError::NonFinite(NonFinite::Batch));
+        }
+        self.backup.copy_from(&self.live);
+        let mut rng = Rng::from_state(self.rng_state);
+        let result = self.retrace_inner(seq, &mut rng);
+        self.rng_state = rng.state();
+        self.finish(result)
+    }
+
+    fn retrace_inner<const L: usize>(
+        &mut self,
+        seq: &SequenceBatch<B, L, OBS, ACT>,
+        rng: &mut Rng,
+    ) -> Result<UpdateStats, UpdateError> {
+        // Per position k: V(s_{k+1}), Q_target(s_k, a_k) and ln pi_target(a_k|s_k) - ln b.
+        let mut v = [[0f32; B]; L];
+        let mut q = [[0f32; B]; L];
+        let mut log_ratio = [[0f32; B]; L];
+        for k in 0..L {
+            self.batch.obs = seq.obs[k];
+            self.batch.action = seq.action[k];
+            self.batch.next_obs = seq.next_obs[k];
+            self.expected_next_value(rng);
+            v[k] = self.s.target;
+            if k > 0 {
+                let (s, batch) = (&mut self.s, &self.batch);
+                self.target_actor
+                    .forward(&batch.obs, &mut s.atape, &mut s.mean, &mut s.chol);
+                self.target_critic
+                    .forward(&batch.obs, &batch.action, &mut s.ctape, &mut s.q);
+                for n in 0..B {
+                    let pi = Gaussian::from_head(&s.mean[n], &s.chol[n], self.cfg.std_floor);
+                    log_ratio[k][n] = pi.log_prob(&batch.action[n]) - seq.behaviour_log_prob[k][n];
+                    q[k][n] = s.q[n][0];
+                }
+            }
+        }
+        let (mut qn, mut vn, mut rn, mut dn, mut ln, mut out) = (
+            [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L],
+        );
+        for n in 0..B {
+            for k in 0..L {
+                qn[k] = q[k][n];
+                vn[k] = v[k][n];
+                rn[k] = seq.reward[k][n];
+                dn[k] = seq.discount[k][n];
+                ln[k] = log_ratio[k][n];
+            }
+            crate::evaluation::retrace(&qn, &vn, &rn, &dn, &ln, self.cfg.gamma, &mut out);
+            self.s.target[n] = out[0];
+        }
+        self.batch.obs = seq.obs[0];
+        self.batch.action = seq.action[0];
+        self.batch.next_obs = seq.next_obs[0];
+        for n in 0..B {
+            self.batch.reward[n] = seq.reward[0][n];
+            self.batch.bootstrap[n] = self.cfg.gamma * seq.discount[0][n];
+        }
+        let mut stats = UpdateStats::default();
+        self.critic_step(&mut stats)?;
+        self.improve(rng, stats)
     }
 
     /// Samples, values, temperature and weights.

@@ -219,3 +219,70 @@ fn non_finite_input_is_reported_and_the_update_undone() {
     l.live.actor.l1.b[0] = f32::INFINITY;
     assert!(l.update().is_err());
 }
+
+#[test]
+fn retrace_update_with_one_step_sequences_equals_the_td_update() {
+    use mpo_core::learner::SequenceBatch;
+    let cfg = MpoConfig {
+        target_period: 3,
+        ..MpoConfig::REPORT
+    };
+    let mut a: Box<L> = bytemuck::zeroed_box();
+    let mut b: Box<L> = bytemuck::zeroed_box();
+    a.init(cfg, 4).unwrap();
+    b.init(cfg, 4).unwrap();
+    let mut rng = Rng::seed_from_u64(8);
+    let mut seq: Box<SequenceBatch<B, 1, OBS, ACT>> = bytemuck::zeroed_box();
+    for _ in 0..5 {
+        fill_batch(&mut a, &mut rng);
+        a.batch.bootstrap = [cfg.gamma; B];
+        seq.obs[0] = a.batch.obs;
+        seq.action[0] = a.batch.action;
+        seq.reward[0] = a.batch.reward;
+        seq.next_obs[0] = a.batch.next_obs;
+        seq.discount[0] = [1.0; B];
+        let sa = a.update().unwrap();
+        let sb = b.update_retrace(&seq).unwrap();
+        assert_eq!(format!("{sa:?}"), format!("{sb:?}"));
+    }
+    assert!(a.live.actor.bits_eq(&b.live.actor) && a.live.critic.bits_eq(&b.live.critic));
+}
+
+#[test]
+fn retrace_update_on_longer_sequences_runs_and_stays_finite() {
+    use mpo_core::learner::SequenceBatch;
+    const LEN: usize = 4;
+    let mut l: Box<L> = bytemuck::zeroed_box();
+    l.init(MpoConfig::REPORT, 4).unwrap();
+    let mut rng = Rng::seed_from_u64(9);
+    let mut seq: Box<SequenceBatch<B, LEN, OBS, ACT>> = bytemuck::zeroed_box();
+    for _ in 0..5 {
+        // A random walk in state with the bandit reward; behaviour log-probabilities from the
+        // current policy, so the traces are near 1.
+        for n in 0..B {
+            let mut s = [0f32; OBS];
+            rng.fill_normal(&mut s);
+            for k in 0..LEN {
+                let mut a = [0f32; ACT];
+                let logp = l.sample_action(&s, &mut rng, &mut a);
+                let mut next = s;
+                next[0] += 0.1 * a[0];
+                seq.obs[k][n] = s;
+                seq.action[k][n] = a;
+                seq.reward[k][n] = -(a[0] - 0.5 * s[0]).powi(2);
+                seq.next_obs[k][n] = next;
+                seq.discount[k][n] = 1.0;
+                seq.behaviour_log_prob[k][n] = logp;
+                s = next;
+            }
+        }
+        let st = l.update_retrace(&seq).unwrap();
+        assert!(
+            st.critic_loss.is_finite() && st.target_mean.is_finite(),
+            "{st:?}"
+        );
+    }
+    // A non-finite behaviour log-probability is rejected.
+    seq.behaviour_log_prob[2][7] = f32::NAN;
+    assert!(l.update_retrace(&seq).is_err());
+}
