@@ -68,6 +68,14 @@ fn bench<const OBS: usize, const ACT: usize, const TRI: usize, const M: usize, c
 }
 
 fn main() {
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!(
+        "load average (1, 5, 15 min) at start: {}\n",
+        load.split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
     println!(
         "| dimensions | E-step samples M | next-action samples N | M-step iterations | updates/s | ms/update | GFLOP/update | GFLOP/s |"
     );
