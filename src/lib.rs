@@ -49,3 +49,76 @@ pub fn count_allocations<R>(f: impl FnOnce() -> R) -> (R, u64) {
 pub fn workspace_root() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
+
+/// Building and running the inference-only firmware (`freestanding/firmware`).
+pub mod firmware {
+    use std::path::{Path, PathBuf};
+    use std::process::{Command, Output};
+
+    use mpo_core::actor::Actor;
+
+    /// Writes `actor` as the firmware's policy source (`mpo_core::export`) to `path`.
+    pub fn export<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+    >(
+        actor: &Actor<OBS, ACT, TRI, H1, H2>,
+        origin: &str,
+        path: &Path,
+    ) {
+        let mut src = String::new();
+        mpo_core::export::write_actor_source(actor, origin, &mut src).unwrap();
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, src).unwrap();
+    }
+
+    /// `cargo build --release` of the firmware for the baseline x86-64 CPU with the policy
+    /// source `policy`, extra `features`, into `target_dir`.
+    pub fn build(policy: &Path, features: &str, target_dir: &Path) -> Output {
+        let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+        cmd.current_dir(super::workspace_root().join("freestanding/firmware"))
+            .args([
+                "build",
+                "--release",
+                "--target",
+                "x86_64-unknown-linux-gnu",
+                "--target-dir",
+            ])
+            .arg(target_dir)
+            .env("MPO_FIRMWARE_WEIGHTS", policy)
+            // Replaces the workspace's config flags: baseline CPU, no rpath.
+            .env("RUSTFLAGS", "-C target-cpu=x86-64")
+            .env_remove("CARGO_ENCODED_RUSTFLAGS");
+        if !features.is_empty() {
+            cmd.args(["--features", features]);
+        }
+        cmd.output().expect("failed to spawn cargo")
+    }
+
+    /// Exports `actor` and builds the firmware under `target/firmware/NAME/`; returns the
+    /// binary's path (panics with cargo's output if the build fails).
+    pub fn export_and_build<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+    >(
+        actor: &Actor<OBS, ACT, TRI, H1, H2>,
+        name: &str,
+    ) -> PathBuf {
+        let dir = super::workspace_root().join("target/firmware").join(name);
+        let src = dir.join("policy.rs");
+        export(actor, name, &src);
+        let out = build(&src, "", &dir.join("build"));
+        assert!(
+            out.status.success(),
+            "firmware build failed:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        dir.join("build/x86_64-unknown-linux-gnu/release/mpo-firmware")
+    }
+}

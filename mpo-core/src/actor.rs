@@ -66,6 +66,7 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         relu(h2);
     }
 
+    #[cfg(feature = "train")]
     /// Raw head outputs for a batch, keeping the activations in `tape` for [`Self::backward`].
     pub fn forward<const B: usize>(
         &self,
@@ -79,6 +80,7 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         self.chol.forward(&tape.h2, chol);
     }
 
+    #[cfg(feature = "train")]
     /// Gradients of `sum_n d_mean[n] . mean[n] + d_chol[n] . chol[n]` with respect to every
     /// parameter, written into `grad`. `tape` must hold the activations of the forward pass
     /// for the same `obs`.
@@ -150,6 +152,7 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 }
 
+#[cfg(feature = "train")]
 /// Activations and backward scratch for a batch of `B` states.
 #[derive(Clone, Zeroable)]
 #[repr(C)]

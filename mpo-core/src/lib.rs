@@ -7,6 +7,10 @@
 //! so nothing is allocated after construction; big state is created zeroed in place (on the
 //! host with `bytemuck::zeroed_box`, on firmware in a static) and initialised with `init`.
 //!
+//! The `train` feature (on by default) holds everything only training needs: backward passes,
+//! tapes, the critic, Adam, the replay, the E- and M-steps and the learner. Firmware builds with
+//! `default-features = false` and keeps the policy network, its forward pass and the Gaussian.
+//!
 //! Shape letters used in the docs: `B` batch, `OBS` observation size, `ACT` action size,
 //! `TRI = ACT (ACT + 1) / 2` Cholesky entries, `H1`/`H2` hidden widths.
 #![no_std]
@@ -15,17 +19,26 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod actor;
+#[cfg(feature = "train")]
 pub mod adam;
+#[cfg(feature = "train")]
 pub mod config;
+#[cfg(feature = "train")]
 pub mod critic;
+#[cfg(feature = "train")]
 pub mod estep;
+#[cfg(feature = "train")]
 pub mod evaluation;
+pub mod export;
 pub mod gaussian;
+#[cfg(feature = "train")]
 pub mod learner;
 pub mod linear;
 pub mod params;
+#[cfg(feature = "train")]
 pub mod replay;
 pub mod rng;
+#[cfg(feature = "train")]
 pub mod selfcheck;
 
 pub use bytemuck;

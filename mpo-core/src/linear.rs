@@ -22,6 +22,7 @@ const TILE_O: usize = 16;
 /// Samples per tile of the batch kernels.
 const TILE_N: usize = 4;
 /// Input rows per tile of the weight-gradient kernel.
+#[cfg(feature = "train")]
 const TILE_I: usize = 4;
 /// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
 /// enough to hide the add latency.
@@ -82,6 +83,7 @@ impl<const I: usize, const O: usize> Linear<I, O> {
         accumulate(x, &self.w, y);
     }
 
+    #[cfg(feature = "train")]
     /// As [`Self::backward`] with the input gradient computed through a transposed copy of
     /// the weights in `wt` (scratch): the fast path for wide layers, where it turns the input
     /// gradient into the same register-tiled kernel as the forward pass.
@@ -102,6 +104,7 @@ impl<const I: usize, const O: usize> Linear<I, O> {
         accumulate(dy, wt, dx);
     }
 
+    #[cfg(feature = "train")]
     /// Weight and bias gradients of `sum_n dy[n] . y[n]`, written into `grad` (overwriting
     /// it), and optionally the input gradient `dx = dy W^T`.
     pub fn backward(
@@ -217,6 +220,7 @@ fn accumulate_one<const I: usize, const O: usize>(
     }
 }
 
+#[cfg(feature = "train")]
 /// `gw[i][o] = sum_n x[n][i] dy[n][o]`, summed in ascending sample order.
 pub fn weight_grad<const I: usize, const O: usize>(
     x: &[[f32; I]],
@@ -267,6 +271,7 @@ pub fn weight_grad<const I: usize, const O: usize>(
     }
 }
 
+#[cfg(feature = "train")]
 /// `wt = w^T`, in 8 x 8 blocks so both sides stay in cache.
 pub fn transpose<const I: usize, const O: usize>(w: &[[f32; O]; I], wt: &mut [[f32; I]; O]) {
     const BLK: usize = 8;
@@ -287,6 +292,7 @@ pub fn transpose<const I: usize, const O: usize>(w: &[[f32; O]; I], wt: &mut [[f
     }
 }
 
+#[cfg(feature = "train")]
 /// `gb[o] = sum_n dy[n][o]`, in ascending sample order.
 pub fn bias_grad<const O: usize>(dy: &[[f32; O]], gb: &mut [f32; O]) {
     gb.fill(0.0);
@@ -297,6 +303,7 @@ pub fn bias_grad<const O: usize>(dy: &[[f32; O]], gb: &mut [f32; O]) {
     }
 }
 
+#[cfg(feature = "train")]
 /// `dx[n][i] = sum_o w[i][o] dy[n][o]`, one accumulator per element in ascending `o`: the
 /// path for narrow layers (the heads). Wide layers use [`Linear::backward_wide`], which turns
 /// this product into the register-tiled forward kernel on transposed weights.
@@ -324,6 +331,7 @@ pub fn relu<const N: usize>(x: &mut [[f32; N]]) {
     }
 }
 
+#[cfg(feature = "train")]
 /// Backpropagates through a ReLU given its output: `d *= (out > 0)`.
 pub fn relu_backward<const N: usize>(out: &[[f32; N]], d: &mut [[f32; N]]) {
     for (g, &a) in d.as_flattened_mut().iter_mut().zip(out.as_flattened()) {
@@ -333,7 +341,7 @@ pub fn relu_backward<const N: usize>(out: &[[f32; N]], d: &mut [[f32; N]]) {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "train"))]
 mod tests {
     use super::*;
 
