@@ -50,10 +50,58 @@ pub fn workspace_root() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// `cargo build --release` of a freestanding crate under `freestanding/` for the baseline
+/// x86-64 CPU (`RUSTFLAGS` replaces the workspace's config flags: no target-cpu, no rpath),
+/// with extra `features` and environment, into `target_dir`.
+pub fn build_freestanding(
+    krate: &str,
+    features: &str,
+    env: &[(&str, &std::ffi::OsStr)],
+    target_dir: &std::path::Path,
+) -> std::process::Output {
+    let mut cmd =
+        std::process::Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cmd.current_dir(workspace_root().join("freestanding").join(krate))
+        .args([
+            "build",
+            "--release",
+            "--target",
+            "x86_64-unknown-linux-gnu",
+            "--target-dir",
+        ])
+        .arg(target_dir)
+        .env("RUSTFLAGS", "-C target-cpu=x86-64")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    if !features.is_empty() {
+        cmd.args(["--features", features]);
+    }
+    cmd.output().expect("failed to spawn cargo")
+}
+
+/// Asserts that a build with each `(feature, expected error text)` fails, for that reason:
+/// the negative controls that show a "does not link with std/alloc" check has teeth.
+pub fn assert_builds_fail(cases: &[(&str, &str)], build: impl Fn(&str) -> std::process::Output) {
+    for (feature, expect) in cases {
+        let out = build(feature);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success(),
+            "build with {feature} succeeded; the check has no teeth"
+        );
+        assert!(
+            err.contains(expect),
+            "build with {feature} failed for another reason:\n{err}"
+        );
+    }
+}
+
 /// Building and running the inference-only firmware (`freestanding/firmware`).
 pub mod firmware {
     use std::path::{Path, PathBuf};
-    use std::process::{Command, Output};
+    use std::process::Output;
 
     use mpo_core::actor::Actor;
 
@@ -75,27 +123,14 @@ pub mod firmware {
         std::fs::write(path, src).unwrap();
     }
 
-    /// `cargo build --release` of the firmware for the baseline x86-64 CPU with the policy
-    /// source `policy`, extra `features`, into `target_dir`.
+    /// Builds the firmware with the policy source `policy` and extra `features`.
     pub fn build(policy: &Path, features: &str, target_dir: &Path) -> Output {
-        let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
-        cmd.current_dir(super::workspace_root().join("freestanding/firmware"))
-            .args([
-                "build",
-                "--release",
-                "--target",
-                "x86_64-unknown-linux-gnu",
-                "--target-dir",
-            ])
-            .arg(target_dir)
-            .env("MPO_FIRMWARE_WEIGHTS", policy)
-            // Replaces the workspace's config flags: baseline CPU, no rpath.
-            .env("RUSTFLAGS", "-C target-cpu=x86-64")
-            .env_remove("CARGO_ENCODED_RUSTFLAGS");
-        if !features.is_empty() {
-            cmd.args(["--features", features]);
-        }
-        cmd.output().expect("failed to spawn cargo")
+        super::build_freestanding(
+            "firmware",
+            features,
+            &[("MPO_FIRMWARE_WEIGHTS", policy.as_os_str())],
+            target_dir,
+        )
     }
 
     /// Exports `actor` and builds the firmware under `target/firmware/NAME/`; returns the

@@ -13,37 +13,12 @@ use std::process::Command;
 
 use mpo_core::selfcheck::{SelfCheck, forward_checksum};
 
-fn cargo() -> String {
-    std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())
-}
-
-fn crate_dir() -> PathBuf {
-    mpo_integration::workspace_root().join("freestanding/core-check")
-}
-
 fn target_dir() -> PathBuf {
     mpo_integration::workspace_root().join("target/freestanding")
 }
 
-/// `cargo build --release` of the freestanding crate with the given extra features.
 fn build(features: &str) -> std::process::Output {
-    let mut cmd = Command::new(cargo());
-    cmd.current_dir(crate_dir())
-        .args([
-            "build",
-            "--release",
-            "--target",
-            "x86_64-unknown-linux-gnu",
-            "--target-dir",
-        ])
-        .arg(target_dir())
-        // RUSTFLAGS replaces the workspace's config flags: baseline CPU, nothing else.
-        .env("RUSTFLAGS", "-C target-cpu=x86-64")
-        .env_remove("CARGO_ENCODED_RUSTFLAGS");
-    if !features.is_empty() {
-        cmd.args(["--features", features]);
-    }
-    cmd.output().expect("failed to spawn cargo")
+    mpo_integration::build_freestanding("core-check", features, &[], &target_dir())
 }
 
 fn parse_hex(line: &str) -> u64 {
@@ -97,21 +72,13 @@ fn freestanding_binary_links_runs_and_matches_host_bits() {
 
 #[test]
 fn freestanding_build_fails_when_alloc_or_std_enter() {
-    for (feature, expect) in [
-        ("use-alloc", "no global memory allocator"),
-        ("use-std", "duplicate lang item"),
-    ] {
-        let out = build(feature);
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(
-            !out.status.success(),
-            "build with {feature} succeeded; the check has no teeth"
-        );
-        assert!(
-            err.contains(expect),
-            "build with {feature} failed for another reason:\n{err}"
-        );
-    }
+    mpo_integration::assert_builds_fail(
+        &[
+            ("use-alloc", "no global memory allocator"),
+            ("use-std", "duplicate lang item"),
+        ],
+        build,
+    );
 }
 
 #[test]
