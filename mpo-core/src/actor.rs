@@ -50,8 +50,8 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         self.l2.init_uniform(rng);
         self.mean.init_uniform(rng);
         self.chol.init_uniform(rng);
-        self.mean.scale_init(0.01);
-        self.chol.scale_init(0.01);
+        self.mean.scale(0.01);
+        self.chol.scale(0.01);
         let diag = softplus_inverse((init_std - std_floor).max(1e-3));
         for j in 0..ACT {
             self.chol.b[tri_index(j, j)] += diag;
@@ -139,11 +139,6 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         let mut c = [0f32; TRI];
         self.forward_one(obs, &mut m, &mut c);
         Gaussian::from_head(&m, &c, std_floor)
-    }
-
-    /// Number of scalar parameters.
-    pub fn param_count(&self) -> usize {
-        self.len()
     }
 
     /// Multiply-adds of one forward pass for one state.

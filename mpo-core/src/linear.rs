@@ -69,12 +69,6 @@ impl<const I: usize, const O: usize> Linear<I, O> {
         }
     }
 
-    /// Scales the layer's initial weights and biases (a small output layer keeps the initial
-    /// policy close to its bias-free default).
-    pub fn scale_init(&mut self, c: f32) {
-        self.scale(c);
-    }
-
     /// `y = b + x W` for every row of `x`.
     pub fn forward(&self, x: &[[f32; I]], y: &mut [[f32; O]]) {
         for row in y.iter_mut() {

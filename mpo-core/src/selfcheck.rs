@@ -33,43 +33,14 @@ pub struct SelfCheck {
     actor_grad: A,
     actor_m: A,
     actor_v: A,
-    actor_opt: AdamStateZ,
+    actor_opt: AdamState,
     critic: C,
     critic_grad: C,
     critic_m: C,
     critic_v: C,
-    critic_opt: AdamStateZ,
+    critic_opt: AdamState,
     actor_tape: ActorTape<B, H, H>,
     critic_tape: CriticTape<B, H, H>,
-}
-
-/// [`AdamState`] in a zeroable wrapper (zero steps; powers restored on first use).
-#[derive(Zeroable, Clone, Copy)]
-struct AdamStateZ {
-    t: u64,
-    b1: f32,
-    b2: f32,
-}
-
-impl AdamStateZ {
-    fn get(&self) -> AdamState {
-        if self.t == 0 {
-            AdamState::default()
-        } else {
-            AdamState {
-                t: self.t,
-                beta1_pow: self.b1,
-                beta2_pow: self.b2,
-            }
-        }
-    }
-    fn set(&mut self, s: AdamState) {
-        *self = Self {
-            t: s.t,
-            b1: s.beta1_pow,
-            b2: s.beta2_pow,
-        };
-    }
 }
 
 impl SelfCheck {
@@ -82,8 +53,8 @@ impl SelfCheck {
         self.actor_v.fill_zero();
         self.critic_m.fill_zero();
         self.critic_v.fill_zero();
-        self.actor_opt = AdamStateZ::zeroed();
-        self.critic_opt = AdamStateZ::zeroed();
+        self.actor_opt = AdamState::default();
+        self.critic_opt = AdamState::default();
         let cfg = AdamConfig::with_lr(1e-2);
         for _ in 0..steps {
             self.step(&mut rng, &cfg);
@@ -125,16 +96,14 @@ impl SelfCheck {
             &mut self.actor_grad,
         );
         clip_global_norm(&mut self.actor_grad, 1.0);
-        let mut st = self.actor_opt.get();
         adam_step(
             cfg,
-            &mut st,
+            &mut self.actor_opt,
             &mut self.actor,
             &self.actor_grad,
             &mut self.actor_m,
             &mut self.actor_v,
         );
-        self.actor_opt.set(st);
 
         let mut q = [[0f32; 1]; B];
         self.critic
@@ -151,16 +120,14 @@ impl SelfCheck {
             &mut self.critic_grad,
         );
         clip_global_norm(&mut self.critic_grad, 1.0);
-        let mut st = self.critic_opt.get();
         adam_step(
             cfg,
-            &mut st,
+            &mut self.critic_opt,
             &mut self.critic,
             &self.critic_grad,
             &mut self.critic_m,
             &mut self.critic_v,
         );
-        self.critic_opt.set(st);
     }
 }
 
