@@ -53,6 +53,12 @@ pub struct Schedule {
     pub eval_interval: u64,
     /// Evaluation episodes, each on a fresh environment with its own evaluation seed.
     pub eval_episodes: u32,
+    /// Weight `c` of the action penalty subtracted from the stored (training) reward:
+    /// `r - c * sum_k (a_k - clip(a_k, -1, 1))^2`. The environment clips actions, so
+    /// without it the critic is flat outside the bounds and the policy mean drifts outwards
+    /// (the problem Acme's action penalization solves; this is its scalarised form).
+    /// Evaluation returns are the environment's rewards, unpenalised.
+    pub action_penalty: f64,
 }
 
 /// [`MpoConfig`] as written in configuration files (see the module doc for the `f64`).
@@ -314,6 +320,9 @@ impl Settings {
         }
         if s.update_interval == 0 {
             return bad("schedule.update_interval must be at least 1".into());
+        }
+        if !(s.action_penalty.is_finite() && s.action_penalty >= 0.0) {
+            return bad("schedule.action_penalty must be a finite number >= 0".into());
         }
         if s.eval_episodes == 0 {
             return bad("schedule.eval_episodes must be at least 1".into());

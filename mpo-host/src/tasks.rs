@@ -133,6 +133,7 @@ const CARTPOLE_SCHEDULE: Schedule = Schedule {
     updates_per_interval: 1,
     eval_interval: 5_000,
     eval_episodes: 10,
+    action_penalty: 1.0,
 };
 
 /// Acme-like settings for the larger tasks.
@@ -148,12 +149,13 @@ const LONG_SCHEDULE: Schedule = Schedule {
     updates_per_interval: 1,
     eval_interval: 20_000,
     eval_episodes: 10,
+    action_penalty: 1.0,
 };
 
 table! {
     "cartpole-balance" / "default": [5, 1, 1, 64, 64, 128, 20, 20, 100_000], steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
     "cartpole-balance" / "tiny": [5, 1, 1, 16, 16, 32, 8, 8, 20_000], steps 4_000,
-        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3 },
+        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 1.0 },
         CARTPOLE_MPO;
     "acrobot-swingup" / "default": [6, 1, 1, 128, 128, 128, 20, 20, 1_000_000], steps 1_000_000, LONG_SCHEDULE, HOPPER_MPO;
     "hopper-stand" / "default": [15, 4, 10, 128, 128, 128, 20, 20, 1_000_000], steps 1_000_000, LONG_SCHEDULE, HOPPER_MPO;

@@ -156,6 +156,7 @@ pub struct Trainer<
     pub stats: StatsAccumulator,
     schedule: Schedule,
     gamma: f32,
+    action_penalty: f32,
 }
 
 impl<
@@ -232,6 +233,7 @@ impl<
             stats,
             schedule: settings.schedule,
             gamma: settings.mpo.to_config().gamma,
+            action_penalty: settings.schedule.action_penalty as f32,
         })
     }
 
@@ -271,10 +273,14 @@ impl<
                 .env
                 .try_step(&self.act64, &mut self.next64)
                 .map_err(StepError::Sim)?;
+            let mut excess = 0f32;
+            for (a, c) in act.iter().zip(&self.act64) {
+                excess += (a - *c as f32) * (a - *c as f32);
+            }
             let mut t = Transition {
                 obs,
                 action: act,
-                reward: step.reward as f32,
+                reward: step.reward as f32 - self.action_penalty * excess,
                 next_obs: [0.0; OBS],
                 discount: step.discount as f32,
                 behaviour_log_prob: log_prob,

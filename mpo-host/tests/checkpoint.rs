@@ -1,0 +1,95 @@
+//! Checkpoint round trip: what is restored saves back to the same bytes; the files are plain
+//! safetensors with real shapes; `mpo eval` on a checkpoint repeats the run's evaluation.
+
+mod common;
+use common::*;
+
+use mpo_host::checkpoint;
+use mpo_host::train::Trainer;
+use safetensors::SafeTensors;
+
+/// The `cartpole-balance`/`tiny` row's types.
+type Tiny = Trainer<5, 1, 1, 16, 16, 32, 8, 8, 20_000>;
+
+#[test]
+fn restore_then_save_gives_the_same_bytes() {
+    let d = scratch("roundtrip");
+    let run = d.join("run");
+    let summary = ok_json(&tiny(&run, 2000, &[]));
+    let v = checkpoint::open(&run).unwrap();
+    assert_eq!(v.meta.env_steps, 2000);
+    assert_eq!(v.meta.episodes, 2);
+    assert_eq!(
+        v.meta.params_sha256,
+        summary["params_sha256"].as_str().unwrap()
+    );
+    let t = Tiny::new(&v.meta.settings, Some(&v)).unwrap();
+    assert_eq!(t.env_steps, 2000);
+    assert_eq!(t.learner.updates, v.meta.updates);
+    assert_eq!(t.replay.len(), 2000);
+    let copy = d.join("copy");
+    std::fs::create_dir_all(&copy).unwrap();
+    checkpoint::save(&copy, &t.learner, &t.replay, &v.meta).unwrap();
+    for f in checkpoint::FILES.iter().chain([&checkpoint::SUMS]) {
+        let a = std::fs::read(run.join("checkpoint").join(f)).unwrap();
+        let b = std::fs::read(copy.join("checkpoint").join(f)).unwrap();
+        assert!(a == b, "{f} differs after a round trip");
+    }
+    // Readable as plain safetensors, weights input-major with their real 2-D shapes.
+    let bytes = std::fs::read(run.join("checkpoint/params.safetensors")).unwrap();
+    let st = SafeTensors::deserialize(&bytes).unwrap();
+    assert_eq!(st.tensor("actor.l1.w").unwrap().shape(), &[5, 16]);
+    assert_eq!(st.tensor("actor.chol.b").unwrap().shape(), &[1]);
+    assert_eq!(st.tensor("critic.l1a.w").unwrap().shape(), &[1, 16]);
+    assert_eq!(st.tensor("target_critic.out.w").unwrap().shape(), &[16, 1]);
+    let w = st.tensor("actor.l1.w").unwrap();
+    let first = f32::from_le_bytes(w.data()[..4].try_into().unwrap());
+    assert_eq!(first.to_bits(), t.learner.live.actor.l1.w[0][0].to_bits());
+    let bytes = std::fs::read(run.join("checkpoint/replay.safetensors")).unwrap();
+    let st = SafeTensors::deserialize(&bytes).unwrap();
+    assert_eq!(st.tensor("obs").unwrap().shape(), &[2000, 5]);
+}
+
+#[test]
+fn eval_repeats_the_runs_last_evaluation() {
+    let d = scratch("evalrepeat");
+    let run = d.join("run");
+    let summary = ok_json(&tiny(&run, 1000, &[]));
+    // The tiny row evaluates 3 episodes; `mpo eval` with the run's seed uses the same ones.
+    let e = ok_json(&mpo(&[
+        "eval",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        "--episodes",
+        "3",
+    ]));
+    assert_eq!(e["return_mean"], summary["eval_return_mean"]);
+    assert_eq!(e["checkpoint_env_steps"], 1000);
+    // Another seed gives other episodes.
+    let e2 = ok_json(&mpo(&[
+        "eval",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        "--episodes",
+        "3",
+        "--seed",
+        "7",
+    ]));
+    assert_ne!(e2["return_mean"], summary["eval_return_mean"]);
+    for f in ["config.toml", "metrics.csv", "metrics.jsonl", "curve.png"] {
+        assert!(run.join(f).exists(), "{f} missing");
+    }
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    assert!(csv.starts_with("env_steps,updates,episodes,wall_s,eval_return_mean,eval_return_std"));
+    assert_eq!(csv.lines().count(), 3, "header, untrained row, step 1000");
+}
+
+#[test]
+fn tasks_lists_sizes() {
+    let out = mpo(&["tasks"]);
+    assert!(out.status.success());
+    let s = String::from_utf8(out.stdout).unwrap();
+    let line = s.lines().find(|l| l.starts_with("hopper-stand")).unwrap();
+    let cols: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(&cols[1..3], &["15", "4"]);
+}
