@@ -222,10 +222,10 @@ impl Tensors {
                 )
             })
             .collect();
-        let info = HashMap::from([
-            ("format".to_string(), FORMAT.to_string()),
-            ("task".to_string(), meta.task.clone()),
-        ]);
+        // One entry only: the header serialises a HashMap, whose order is random, and
+        // checkpoints must be byte-reproducible.
+        let _ = meta;
+        let info = HashMap::from([("format".to_string(), FORMAT.to_string())]);
         safetensors::tensor::serialize(views, Some(info)).expect("serialisable tensors")
     }
 }

@@ -73,6 +73,8 @@ fn apply(base: &toml::Table, layers: &[(String, toml::Table)]) -> Result<toml::T
     let mut t = base.clone();
     for (origin, l) in layers {
         settings::overlay(&mut t, l, origin, "")?;
+        // Type errors are reported against the layer that introduced them.
+        Settings::from_table(t.clone(), origin)?;
     }
     Ok(t)
 }
