@@ -154,7 +154,7 @@ const LONG_SCHEDULE: Schedule = Schedule {
 
 table! {
     "cartpole-balance" / "default": [5, 1, 1, 64, 64, 128, 20, 20, 100_000], steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
-    "cartpole-balance" / "tiny": [5, 1, 1, 16, 16, 32, 8, 8, 20_000], steps 4_000,
+    "cartpole-balance" / "tiny": [5, 1, 1, 32, 32, 64, 10, 10, 50_000], steps 4_000,
         Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 1.0 },
         CARTPOLE_MPO;
     "acrobot-swingup" / "default": [6, 1, 1, 128, 128, 128, 20, 20, 1_000_000], steps 1_000_000, LONG_SCHEDULE, HOPPER_MPO;

@@ -9,7 +9,7 @@ use mpo_host::train::Trainer;
 use safetensors::SafeTensors;
 
 /// The `cartpole-balance`/`tiny` row's types.
-type Tiny = Trainer<5, 1, 1, 16, 16, 32, 8, 8, 20_000>;
+type Tiny = Trainer<5, 1, 1, 32, 32, 64, 10, 10, 50_000>;
 
 #[test]
 fn restore_then_save_gives_the_same_bytes() {
@@ -38,10 +38,10 @@ fn restore_then_save_gives_the_same_bytes() {
     // Readable as plain safetensors, weights input-major with their real 2-D shapes.
     let bytes = std::fs::read(run.join("checkpoint/params.safetensors")).unwrap();
     let st = SafeTensors::deserialize(&bytes).unwrap();
-    assert_eq!(st.tensor("actor.l1.w").unwrap().shape(), &[5, 16]);
+    assert_eq!(st.tensor("actor.l1.w").unwrap().shape(), &[5, 32]);
     assert_eq!(st.tensor("actor.chol.b").unwrap().shape(), &[1]);
-    assert_eq!(st.tensor("critic.l1a.w").unwrap().shape(), &[1, 16]);
-    assert_eq!(st.tensor("target_critic.out.w").unwrap().shape(), &[16, 1]);
+    assert_eq!(st.tensor("critic.l1a.w").unwrap().shape(), &[1, 32]);
+    assert_eq!(st.tensor("target_critic.out.w").unwrap().shape(), &[32, 1]);
     let w = st.tensor("actor.l1.w").unwrap();
     let first = f32::from_le_bytes(w.data()[..4].try_into().unwrap());
     assert_eq!(first.to_bits(), t.learner.live.actor.l1.w[0][0].to_bits());

@@ -57,7 +57,7 @@ fn half_then_resume_equals_uninterrupted() {
 fn ctrl_c_checkpoints_at_an_episode_boundary_and_resume_matches() {
     let d = scratch("ctrlc");
     let (a, b) = (d.join("whole"), d.join("interrupted"));
-    let steps = 30_000u64;
+    let steps = 20_000u64;
     let whole = ok_json(&tiny(&a, steps, &[]));
 
     let child = std::process::Command::new(env!("CARGO_BIN_EXE_mpo"))
