@@ -305,14 +305,14 @@ impl Settings {
                 self.task, self.net
             ));
         }
-        if self.steps == 0 || self.steps % episode_steps != 0 {
+        if self.steps == 0 || !self.steps.is_multiple_of(episode_steps) {
             return bad(format!(
                 "steps = {} must be a positive multiple of the episode length ({episode_steps}): checkpoints are taken at episode boundaries",
                 self.steps
             ));
         }
         let s = &self.schedule;
-        if s.eval_interval == 0 || s.eval_interval % episode_steps != 0 {
+        if s.eval_interval == 0 || !s.eval_interval.is_multiple_of(episode_steps) {
             return bad(format!(
                 "schedule.eval_interval = {} must be a positive multiple of the episode length ({episode_steps})",
                 s.eval_interval
