@@ -296,7 +296,8 @@ impl<
                 self.episodes += 1;
             }
             let s = &self.schedule;
-            if self.env_steps >= s.warmup_steps && self.env_steps.is_multiple_of(s.update_interval) {
+            if self.env_steps >= s.warmup_steps && self.env_steps.is_multiple_of(s.update_interval)
+            {
                 for _ in 0..s.updates_per_interval {
                     self.update().map_err(StepError::Update)?;
                 }
@@ -559,8 +560,8 @@ fn run<
                 last_eval.0
             ));
         }
-        let at_eval =
-            t.env_steps.is_multiple_of(settings.schedule.eval_interval) || t.env_steps == settings.steps;
+        let at_eval = t.env_steps.is_multiple_of(settings.schedule.eval_interval)
+            || t.env_steps == settings.steps;
         if at_eval {
             last_eval = evaluate_now(
                 &mut t,
