@@ -1,0 +1,42 @@
+//! The act-and-learn loop allocates nothing: a counting allocator around
+//! `Trainer::collect` over episode boundaries, warm-up and learner updates.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use mpo_host::commands::defaults;
+use mpo_host::tasks;
+use mpo_host::train::Trainer;
+
+struct Counting;
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static A: Counting = Counting;
+
+#[test]
+fn collect_and_learn_allocate_nothing() {
+    let row = tasks::row("cartpole-balance", "tiny").unwrap();
+    let settings = defaults(row);
+    let mut t = Trainer::<5, 1, 1, 32, 32, 64, 10, 10, 50_000>::new(&settings, None).unwrap();
+    let before = ALLOCS.load(Ordering::SeqCst);
+    // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).
+    t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
+    let after = ALLOCS.load(Ordering::SeqCst);
+    assert!(t.learner.updates >= 400, "updates {}", t.learner.updates);
+    assert_eq!(after - before, 0, "allocations inside collect");
+}
