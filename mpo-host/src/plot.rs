@@ -53,6 +53,8 @@ pub fn write_curve(path: &Path, title: &str, rows: &[MetricsRow]) -> Result<(), 
         .x_desc("environment steps")
         .y_desc("evaluation return")
         .label_style(("sans-serif", 14))
+        .x_label_formatter(&|x| format!("{:.0}k", x / 1000.0))
+        .y_label_formatter(&|y| format!("{y:.0}"))
         .draw()
         .map_err(|e| e.to_string())?;
     let band: Vec<(f64, f64)> = rows
