@@ -124,6 +124,13 @@ pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Veri
             .into());
         }
         s.validate(episode_steps(&s.task)?, &row.sizes)?;
+        if s.steps < v.meta.env_steps {
+            return Err(SettingsError::Invalid(format!(
+                "steps = {} is below the checkpoint's {} environment steps",
+                s.steps, v.meta.env_steps
+            ))
+            .into());
+        }
         let run_dir = if v.dir.file_name().is_some_and(|n| n == checkpoint::SUBDIR) {
             v.dir
                 .parent()
