@@ -112,6 +112,9 @@ impl MpoSettings {
     };
 
     /// The learner's configuration (one `f64 -> f32` rounding per field).
+    // The trailing `..REPORT` keeps this compiling if the core gains a field (it then takes
+    // the core's default until it is added here).
+    #[allow(clippy::needless_update)]
     pub fn to_config(&self) -> MpoConfig {
         MpoConfig {
             eps_eta: self.eps_eta as f32,
@@ -133,6 +136,7 @@ impl MpoSettings {
             alpha_cov_init: self.alpha_cov_init as f32,
             estep_tol: self.estep_tol,
             estep_max_iter: self.estep_max_iter,
+            ..MpoConfig::REPORT
         }
     }
 }
@@ -337,5 +341,59 @@ impl Settings {
             .to_config()
             .validate()
             .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn t(s: &str) -> toml::Table {
+        s.parse().unwrap()
+    }
+
+    #[test]
+    fn overlay_replaces_leaves_and_rejects_unknown_keys() {
+        let mut base = t("a = 1\n[m]\nx = 1.0\ny = 2\n");
+        overlay(&mut base, &t("[m]\nx = 3.0\n"), "f", "").unwrap();
+        assert_eq!(base, t("a = 1\n[m]\nx = 3.0\ny = 2\n"));
+        let e = overlay(&mut base, &t("[m]\nz = 1\n"), "f", "").unwrap_err();
+        assert!(e.to_string().contains("unknown setting `m.z`"), "{e}");
+    }
+
+    #[test]
+    fn set_parses_toml_values_and_bare_words() {
+        assert_eq!(
+            parse_set("mpo.actor_lr=1e-4").unwrap(),
+            t("[mpo]\nactor_lr = 1e-4\n")
+        );
+        assert_eq!(
+            parse_set("task=hopper-stand").unwrap(),
+            t("task = \"hopper-stand\"\n")
+        );
+        assert_eq!(
+            parse_set("mpo.per_dim_kl=true").unwrap(),
+            t("[mpo]\nper_dim_kl = true\n")
+        );
+        assert!(parse_set("novalue").is_err());
+    }
+
+    #[test]
+    fn differences_name_each_key_and_skip_ignored_ones() {
+        let a = t("steps = 1\nseed = 0\n[m]\nx = 1.0\n");
+        let b = t("steps = 2\nseed = 3\n[m]\nx = 2.0\n");
+        let d = differences(&a, &b, "", &["steps"]);
+        assert_eq!(d.len(), 2, "{d:?}");
+        assert!(d[0].contains("`m.x`") || d[1].contains("`m.x`"));
+        assert!(
+            d.iter()
+                .any(|s| s.contains("`seed` is 0 in the checkpoint, 3 here"))
+        );
+    }
+
+    #[test]
+    fn report_settings_match_the_core_defaults() {
+        let c = MpoSettings::REPORT.to_config();
+        assert_eq!(c, MpoConfig::REPORT);
     }
 }
