@@ -310,7 +310,6 @@ pub fn locate(dir: &Path) -> Result<PathBuf, CheckpointError> {
 
 /// Writes a checkpoint of `learner`, `replay` and `meta` into `run_dir/checkpoint`,
 /// replacing the previous one only once the new one is complete.
-#[allow(clippy::too_many_arguments)]
 pub fn save<
     const OBS: usize,
     const ACT: usize,

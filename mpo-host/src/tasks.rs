@@ -55,7 +55,6 @@ pub trait RowVisitor {
     /// Result.
     type Out;
     /// Runs with the row's types (`TRI = ACT (ACT + 1) / 2`, `CAP` replay capacity).
-    #[allow(clippy::too_many_arguments)]
     fn visit<
         const OBS: usize,
         const ACT: usize,

@@ -377,7 +377,6 @@ fn log(pb: &ProgressBar, msg: &str) {
     }
 }
 
-#[allow(clippy::too_many_lines)]
 fn run<
     const OBS: usize,
     const ACT: usize,
