@@ -103,10 +103,20 @@ pub struct ParamChunk {
 }
 
 // The zero value of every message is valid (all fields are integers and floats); building them
-// zeroed avoids writing 16 KiB literals on the stack.
+// zeroed avoids writing 16 KiB literals on the stack. They are also plain bytes (no padding:
+// checked below), so a byte-stream transport (the Unix-socket baseline) can send them as is.
 unsafe impl bytemuck::Zeroable for ObsMsg {}
 unsafe impl bytemuck::Zeroable for ActMsg {}
 unsafe impl bytemuck::Zeroable for ParamChunk {}
+unsafe impl bytemuck::Pod for ObsMsg {}
+unsafe impl bytemuck::Pod for ActMsg {}
+unsafe impl bytemuck::Pod for ParamChunk {}
+const _: () = {
+    // Sum of the field sizes equals the struct size: no padding bytes.
+    assert!(size_of::<ObsMsg>() == 3 * 8 + 4 * 4 + 4 * (MAX_OBS + MAX_ACT));
+    assert!(size_of::<ActMsg>() == 4 * 8 + 4 * 4 + 4 * MAX_ACT);
+    assert!(size_of::<ParamChunk>() == 3 * 8 + 4 * 4 + 4 * CHUNK);
+};
 
 /// FNV-1a over the bit patterns of `xs`, continuing from `h` (start with [`CHECKSUM_SEED`]).
 ///

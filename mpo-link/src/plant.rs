@@ -94,7 +94,7 @@ pub struct Plant {
     req: ObsMsg,
     /// One parameter block being built (16 KiB: kept on the heap).
     chunk: Box<ParamChunk>,
-    last_miss: bool,
+    miss_streak: u32,
 }
 
 impl Drop for Plant {
@@ -128,7 +128,7 @@ impl Plant {
             stats: PlantStats::default(),
             req: bytemuck::Zeroable::zeroed(),
             chunk: bytemuck::zeroed_box(),
-            last_miss: false,
+            miss_streak: 0,
         })
     }
 
@@ -244,7 +244,7 @@ impl Plant {
                         let mut action = [0f32; MAX_ACT];
                         action[..a.len()].copy_from_slice(a);
                         self.stats.replies += 1;
-                        self.last_miss = false;
+                        self.miss_streak = 0;
                         return Ok(Action {
                             action,
                             log_prob: (m.flags & ACT_SAMPLED != 0).then_some(m.log_prob),
@@ -273,12 +273,13 @@ impl Plant {
 
     fn miss(&mut self, m: Miss) -> Result<Action, Miss> {
         self.stats.misses += 1;
-        if !self.last_miss {
-            // First miss of a streak: a killed controller leaves its ports registered; clearing
-            // them lets its replacement connect cleanly.
+        self.miss_streak += 1;
+        if self.miss_streak == 10 {
+            // A controller that stays silent is probably dead; a killed one leaves its ports
+            // registered. Clear them once per streak (not on every miss: the scan costs far
+            // more than a control period, and a restarted controller cleans up as well).
             self.ports().cleanup_dead();
         }
-        self.last_miss = true;
         Err(m)
     }
 

@@ -81,7 +81,9 @@ fn run() -> Result<(), String> {
     )
     .map_err(|e| e.to_string())?;
     let r = stats.rejections;
-    println!(
+    // Whoever started us may have closed our stdout already: not an error at shutdown.
+    let _ = writeln!(
+        std::io::stdout(),
         "stats answered={} superseded={} swaps={} rejected_length={} rejected_non_finite={} \
          rejected_sequence={} rejected_corrupt={}",
         stats.answered,
