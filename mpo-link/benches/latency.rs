@@ -203,20 +203,27 @@ fn sleep_until(t_ns: u64) {
 }
 
 /// Paced at 1 kHz: each period's request must be answered before the next period starts.
-fn paced(seconds: u64, obs: &[[f32; 15]]) {
+/// With `rt`, both sides run under `SCHED_FIFO` at that priority.
+fn paced(seconds: u64, obs: &[[f32; 15]], rt: Option<i32>) {
     let run = RunId::new();
-    let ctl = Command::new(env!("CARGO_BIN_EXE_mpo-controller"))
-        .args([
-            "--run",
-            run.as_str(),
-            "--profile",
-            PROFILE,
-            "--wait",
-            "event",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_mpo-controller"));
+    cmd.args([
+        "--run",
+        run.as_str(),
+        "--profile",
+        PROFILE,
+        "--wait",
+        "event",
+    ]);
+    if let Some(p) = rt {
+        if let Err(e) = mpo_link::realtime::enter(p) {
+            println!("\n(SCHED_FIFO not available here: {e}; real-time run skipped)");
+            return;
+        }
+        cmd.args(["--realtime", &p.to_string()]);
+    }
+    mpo_link::realtime::tight_timer_slack();
+    let ctl = cmd.stdout(Stdio::piped()).spawn().unwrap();
     let _ctl = Server::wait_ready(ctl);
     let period = 1_000_000u64;
     let mut plant = Plant::open(
@@ -253,10 +260,14 @@ fn paced(seconds: u64, obs: &[[f32; 15]]) {
     lat.sort_unstable();
     let s = plant.stats();
     println!(
-        "\n### Paced at 1 kHz, iceoryx2 event mode, {seconds} s ({n} periods)\n\n\
+        "\n### Paced at 1 kHz, iceoryx2 event mode, {}, {seconds} s ({n} periods)\n\n\
          | deadline misses | wake-up lateness p50 / p99 / p99.9 / max (us) | round trip p50 / p99 / p99.9 / max (us) | stale replies dropped |\n\
          |---:|---|---|---:|\n\
          | {misses} ({:.3}%) | {:.1} / {:.1} / {:.1} / {:.1} | {:.1} / {:.1} / {:.1} / {:.1} | {} |",
+        match rt {
+            Some(p) => format!("SCHED_FIFO priority {p} on both sides"),
+            None => "default scheduler".to_string(),
+        },
         100.0 * misses as f64 / n as f64,
         pct(&late, 0.5),
         pct(&late, 0.99),
@@ -326,7 +337,9 @@ fn main() {
         );
     }
     if seconds > 0 {
-        paced(seconds, &obs);
+        paced(seconds, &obs, None);
+        // Last: it switches this process to SCHED_FIFO.
+        paced(seconds, &obs, Some(50));
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     println!("\nload average at end: {}", load.trim());

@@ -5,7 +5,8 @@
 //! - [`service`]: run identity (unique service names and file prefix), the ports of each side;
 //! - [`plant`]: the host endpoint ([`plant::Plant`]): request an action with a deadline, push
 //!   parameters;
-//! - [`controller`]: the controller loop behind the `mpo-controller` binary.
+//! - [`controller`]: the controller loop behind the `mpo-controller` binary;
+//! - [`realtime`]: `SCHED_FIFO` and timer slack for paced loops.
 //!
 //! Both sides wait either event-driven (an event service per direction, a notify after each
 //! send) or by busy-polling ([`service::WaitMode`]).
@@ -13,6 +14,7 @@
 pub mod controller;
 pub mod messages;
 pub mod plant;
+pub mod realtime;
 pub mod service;
 
 pub use messages::{MAX_ACT, MAX_OBS};

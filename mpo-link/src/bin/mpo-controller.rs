@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! mpo-controller --run <id> [--profile hopper-256] [--wait event|busy-poll] [--seed N]
-//!                [--init-std S] [--ready-file PATH]
+//!                [--init-std S] [--realtime PRIO]
 //! ```
 //!
 //! Prints one `ready` line on stdout when its ports are open and one `stats ...` line on exit
@@ -15,7 +15,7 @@ use mpo_link::controller::{ControllerOptions, PROFILES, install_stop_handler, se
 use mpo_link::{RunId, WaitMode, with_profile};
 
 const USAGE: &str = "usage: mpo-controller --run <id> [--profile NAME] [--wait event|busy-poll] \
-[--seed N] [--init-std S]";
+[--seed N] [--init-std S] [--realtime PRIO]";
 
 fn main() -> ExitCode {
     match run() {
@@ -33,6 +33,7 @@ fn run() -> Result<(), String> {
     let mut wait = WaitMode::Event;
     let mut seed = 0u64;
     let mut init_std = 1.0f32;
+    let mut realtime = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || {
@@ -48,6 +49,9 @@ fn run() -> Result<(), String> {
             }
             "--seed" => seed = value()?.parse().map_err(|e| format!("--seed: {e}"))?,
             "--init-std" => init_std = value()?.parse().map_err(|e| format!("--init-std: {e}"))?,
+            "--realtime" => {
+                realtime = Some(value()?.parse().map_err(|e| format!("--realtime: {e}"))?)
+            }
             "-h" | "--help" => {
                 println!("{USAGE}\nprofiles: {}", PROFILES.join(", "));
                 return Ok(());
@@ -58,6 +62,12 @@ fn run() -> Result<(), String> {
     let run = run.ok_or(format!("--run is required\n{USAGE}"))?;
     if !(init_std.is_finite() && init_std > 1e-4) {
         return Err("--init-std must be finite and above 1e-4".into());
+    }
+    if let Some(prio) = realtime {
+        if wait == WaitMode::BusyPoll {
+            return Err("--realtime with --wait busy-poll would starve the core".into());
+        }
+        mpo_link::realtime::enter(prio)?;
     }
     install_stop_handler();
     let opts = ControllerOptions {
