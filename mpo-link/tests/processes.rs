@@ -57,9 +57,21 @@ impl Controller {
 }
 
 impl Drop for Controller {
+    /// SIGTERM (so the run's files go), SIGKILL after 2 s.
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        if let Ok(None) = self.child.try_wait() {
+            // SAFETY: plain kill(2) on our own child.
+            unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+            let t0 = Instant::now();
+            while let Ok(None) = self.child.try_wait() {
+                if t0.elapsed() > Duration::from_secs(2) {
+                    let _ = self.child.kill();
+                    let _ = self.child.wait();
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
     }
 }
 
@@ -200,7 +212,7 @@ fn killed_controller_gives_safe_actions_then_a_new_one_takes_over() {
     assert_eq!(plant.stats().timeouts, plant.stats().misses);
     // A new controller with a different initial policy: it must pick up the pushed parameters
     // from the service's history and answer with them.
-    let _ctl2 = Controller::spawn(&run, "hopper-64", "event", 77);
+    let ctl2 = Controller::spawn(&run, "hopper-64", "event", 77);
     let mut resumed = 0;
     for _ in 0..200 {
         let o = random_obs(&mut rng);
@@ -215,6 +227,26 @@ fn killed_controller_gives_safe_actions_then_a_new_one_takes_over() {
         resumed >= 190,
         "only {resumed} of 200 answered after the restart"
     );
+    // Even the killed controller's resources are reclaimed once the run ends.
+    drop(ctl2);
+    drop(plant);
+    assert!(run.files().is_empty(), "left behind: {:?}", run.files());
+}
+
+#[test]
+fn bad_arguments_fail_loudly() {
+    let exe = env!("CARGO_BIN_EXE_mpo-controller");
+    for args in [
+        &["--run", "x-1", "--profile", "walker-1024"][..],
+        &["--run", "bad/name"],
+        &["--profile", "hopper-64"],
+        &["--run", "x-1", "--wait", "busy-poll", "--realtime", "50"],
+        &["--run", "x-1", "--wait", "sometimes"],
+    ] {
+        let out = Command::new(exe).args(args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        assert!(!out.stderr.is_empty(), "{args:?}: no message");
+    }
 }
 
 #[test]
