@@ -373,6 +373,44 @@ mod tests {
     }
 
     #[test]
+    fn raw_columns_and_counters_restore_a_copy() {
+        let mut r: Box<Replay<4, 2, 1>> = bytemuck::zeroed_box();
+        r.begin_episode();
+        for i in 0..6 {
+            r.push(&t(i as f32));
+        }
+        let mut c: Box<Replay<4, 2, 1>> = bytemuck::zeroed_box();
+        let src = r.raw();
+        let dst = c.raw_columns_mut();
+        *dst.obs = *src.obs;
+        *dst.action = *src.action;
+        *dst.next_obs = *src.next_obs;
+        *dst.reward = *src.reward;
+        *dst.discount = *src.discount;
+        *dst.behaviour_log_prob = *src.behaviour_log_prob;
+        *dst.episode = *src.episode;
+        c.set_counters(src.counters).unwrap();
+        for k in 0..4 {
+            assert_eq!(c.get(k), r.get(k));
+        }
+        assert_eq!(c.counters(), r.counters());
+        let ok = r.counters();
+        for bad in [
+            ReplayCounters { head: 4, ..ok },
+            ReplayCounters { len: 5, ..ok },
+            ReplayCounters { inserted: 3, ..ok },
+            ReplayCounters {
+                head: 1,
+                len: 3,
+                inserted: 3,
+                current_episode: 1,
+            },
+        ] {
+            assert_eq!(c.set_counters(bad), Err(InvalidCounters), "{bad:?}");
+        }
+    }
+
+    #[test]
     fn uniform_sampling_is_deterministic_and_covers() {
         let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
         r.begin_episode();
