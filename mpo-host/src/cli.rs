@@ -28,6 +28,22 @@ pub enum Command {
     Eval(EvalArgs),
     /// List the Control Suite tasks with their observation and action sizes and table rows.
     Tasks,
+    /// Draw the learning curves of several runs (e.g. seeds) into one PNG.
+    Plot(PlotArgs),
+}
+
+/// `mpo plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// Output PNG.
+    #[arg(long, value_name = "FILE.png")]
+    pub out: PathBuf,
+    /// Chart title [default: the task of the first run].
+    #[arg(long)]
+    pub title: Option<String>,
+    /// Run directories (each with metrics.jsonl); each becomes one labelled curve.
+    #[arg(required = true, value_name = "RUN_DIR")]
+    pub runs: Vec<PathBuf>,
 }
 
 /// `mpo train`.

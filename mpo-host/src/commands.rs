@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use serde::Serialize;
 
 use crate::checkpoint::{self, CheckpointError, Verified};
-use crate::cli::{EvalArgs, TrainArgs};
+use crate::cli::{EvalArgs, PlotArgs, TrainArgs};
 use crate::eval::{evaluate, mean_std};
 use crate::settings::{self, Settings, SettingsError};
 use crate::tasks::{self, Row, RowVisitor, UnknownTask};
@@ -32,6 +32,9 @@ pub enum Error {
     /// Simulator.
     #[error("simulator: {0}")]
     Sim(#[from] sim_bridge::SimError),
+    /// A metrics file that cannot be read or plotted.
+    #[error("{0}")]
+    Plot(String),
     /// The run directory already holds a run.
     #[error(
         "{0} already holds a checkpoint: continue it with `mpo train --resume {0}`, or choose another --out"
@@ -296,4 +299,49 @@ pub fn tasks_listing() -> String {
         s.push_str(&format!("{name:<18} {obs:>4} {act:>4}  {rows}\n"));
     }
     s
+}
+
+/// `mpo plot`: one curve per run directory, labelled with the directory's name.
+pub fn plot(args: &PlotArgs) -> Result<(), Error> {
+    let mut series = Vec::new();
+    let mut task = None;
+    for dir in &args.runs {
+        let path = dir.join("metrics.jsonl");
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
+        let mut pts = Vec::new();
+        for (i, line) in text.lines().enumerate() {
+            let v: serde_json::Value = serde_json::from_str(line)
+                .map_err(|e| Error::Plot(format!("{} line {}: {e}", path.display(), i + 1)))?;
+            let get = |k: &str| {
+                v.get(k).and_then(|x| x.as_f64()).ok_or_else(|| {
+                    Error::Plot(format!(
+                        "{} line {}: no number `{k}`",
+                        path.display(),
+                        i + 1
+                    ))
+                })
+            };
+            pts.push((
+                get("env_steps")? as u64,
+                get("eval_return_mean")?,
+                get("eval_return_std")?,
+            ));
+        }
+        if task.is_none() {
+            task = settings::read_table(&dir.join("config.toml"))
+                .ok()
+                .and_then(|t| str_value(&t, "task"));
+        }
+        let label = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().to_string())
+            .unwrap_or_else(|| dir.display().to_string());
+        series.push((label, pts));
+    }
+    let title = args
+        .title
+        .clone()
+        .unwrap_or_else(|| format!("MPO {}", task.unwrap_or_default()));
+    crate::plot::write_curves(&args.out, &title, &series).map_err(Error::Plot)
 }

@@ -35,6 +35,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             println!("{}", serde_json::to_string(&s)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Plot(args) => {
+            commands::plot(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Tasks => {
             print!("{}", commands::tasks_listing());
             Ok(ExitCode::SUCCESS)

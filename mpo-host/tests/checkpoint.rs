@@ -82,6 +82,20 @@ fn eval_repeats_the_runs_last_evaluation() {
     let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
     assert!(csv.starts_with("env_steps,updates,episodes,wall_s,eval_return_mean,eval_return_std"));
     assert_eq!(csv.lines().count(), 3, "header, untrained row, step 1000");
+    let png = d.join("both.png");
+    let out = mpo(&[
+        "plot",
+        "--out",
+        png.to_str().unwrap(),
+        run.to_str().unwrap(),
+        run.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
 }
 
 #[test]
