@@ -121,14 +121,25 @@ fn train(mut acting: Acting, steps: usize, warmup: usize) -> (Box<L>, u64) {
     (l, trace)
 }
 
-/// Kills the controller if the test fails half-way (it would otherwise outlive the test and
-/// hold the test's stderr open).
+/// Stops the controller if the test fails half-way (it would otherwise outlive the test and
+/// hold the test's stderr open): SIGTERM so it removes its files, SIGKILL after 2 s.
 struct Guard(std::process::Child);
 
 impl Drop for Guard {
     fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        if let Ok(None) = self.0.try_wait() {
+            // SAFETY: plain kill(2) on our own child.
+            unsafe { libc::kill(self.0.id() as i32, libc::SIGTERM) };
+            let t0 = std::time::Instant::now();
+            while let Ok(None) = self.0.try_wait() {
+                if t0.elapsed() > Duration::from_secs(2) {
+                    let _ = self.0.kill();
+                    let _ = self.0.wait();
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
     }
 }
 
