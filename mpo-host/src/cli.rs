@@ -26,10 +26,26 @@ pub enum Command {
     Train(TrainArgs),
     /// Evaluate a checkpoint's mean-action policy; prints mean and std of the return as JSON.
     Eval(EvalArgs),
+    /// Write a checkpoint's policy as Rust source (constant arrays in read-only memory) for
+    /// the inference-only firmware: OUT/policy.rs. Build the firmware with
+    /// `MPO_FIRMWARE_WEIGHTS=OUT/policy.rs cargo build --release --manifest-path
+    /// freestanding/firmware/Cargo.toml --target x86_64-unknown-linux-gnu` (docs/firmware.md).
+    Export(ExportArgs),
     /// List the Control Suite tasks with their observation and action sizes and table rows.
     Tasks,
     /// Draw the learning curves of several runs (e.g. seeds) into one PNG.
     Plot(PlotArgs),
+}
+
+/// `mpo export`.
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// Run directory or checkpoint directory.
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint: PathBuf,
+    /// Output directory (created if missing); the source goes to OUT/policy.rs.
+    #[arg(long, value_name = "OUT")]
+    pub out: PathBuf,
 }
 
 /// `mpo plot`.

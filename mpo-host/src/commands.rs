@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use serde::Serialize;
 
 use crate::checkpoint::{self, CheckpointError, Verified};
-use crate::cli::{EvalArgs, PlotArgs, TrainArgs};
+use crate::cli::{EvalArgs, ExportArgs, PlotArgs, TrainArgs};
 use crate::eval::{evaluate, mean_std};
 use crate::settings::{self, Settings, SettingsError};
 use crate::tasks::{self, Row, RowVisitor, UnknownTask};
@@ -40,6 +40,14 @@ pub enum Error {
         "{0} already holds a checkpoint: continue it with `mpo train --resume {0}`, or choose another --out"
     )]
     OutExists(String),
+    /// A file that cannot be written.
+    #[error("cannot write {path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
 }
 
 fn str_value(t: &toml::Table, k: &str) -> Option<String> {
@@ -221,22 +229,7 @@ impl RowVisitor for EvalVisitor {
         row: &'static Row,
     ) -> Self::Out {
         let m = &self.v.meta;
-        if m.sizes != row.sizes {
-            return Err(SettingsError::Mismatch {
-                dir: self.v.dir.display().to_string(),
-                differences: vec![format!(
-                    "network sizes are {:?} in the checkpoint, {:?} in this build's task table",
-                    m.sizes, row.sizes
-                )],
-            }
-            .into());
-        }
-        let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H1, H2, B, M, N>> =
-            bytemuck::zeroed_box();
-        learner
-            .init(m.settings.mpo.to_config(), m.settings.seed as u64)
-            .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))?;
-        self.v.load_networks(&mut learner)?;
+        let learner = load_learner::<OBS, ACT, TRI, H1, H2, B, M, N>(&self.v, row)?;
         let returns = evaluate(&learner, &m.settings.task, self.seed, self.episodes)?;
         let (return_mean, return_std) = mean_std(&returns);
         Ok(EvalSummary {
@@ -249,6 +242,127 @@ impl RowVisitor for EvalVisitor {
             returns,
         })
     }
+}
+
+/// A learner of the row's types holding the checkpoint's networks (sizes checked against the
+/// row, checksums verified).
+fn load_learner<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+    const B: usize,
+    const M: usize,
+    const N: usize,
+>(
+    v: &Verified,
+    row: &'static Row,
+) -> Result<Box<mpo_core::learner::Learner<OBS, ACT, TRI, H1, H2, B, M, N>>, Error> {
+    let m = &v.meta;
+    if m.sizes != row.sizes {
+        return Err(SettingsError::Mismatch {
+            dir: v.dir.display().to_string(),
+            differences: vec![format!(
+                "network sizes are {:?} in the checkpoint, {:?} in this build's task table",
+                m.sizes, row.sizes
+            )],
+        }
+        .into());
+    }
+    let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H1, H2, B, M, N>> =
+        bytemuck::zeroed_box();
+    learner
+        .init(m.settings.mpo.to_config(), m.settings.seed as u64)
+        .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))?;
+    v.load_networks(&mut learner)?;
+    Ok(learner)
+}
+
+/// What `mpo export` wrote.
+#[derive(Debug, Serialize)]
+pub struct ExportSummary {
+    /// Task of the checkpoint.
+    pub task: String,
+    /// Environment steps of the checkpoint.
+    pub checkpoint_env_steps: u64,
+    /// The written Rust source.
+    pub policy: PathBuf,
+    /// Observation, action and hidden sizes.
+    pub obs: usize,
+    /// Action size.
+    pub act: usize,
+    /// Hidden widths.
+    pub hidden: [usize; 2],
+    /// Scalar parameters of the actor (what the firmware keeps in flash, 4 bytes each).
+    pub parameters: usize,
+}
+
+struct ExportVisitor {
+    v: Verified,
+    out: PathBuf,
+}
+
+impl RowVisitor for ExportVisitor {
+    type Out = Result<ExportSummary, Error>;
+    fn visit<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+        const B: usize,
+        const M: usize,
+        const N: usize,
+        const CAP: usize,
+    >(
+        self,
+        row: &'static Row,
+    ) -> Self::Out {
+        use mpo_core::params::Params;
+        let learner = load_learner::<OBS, ACT, TRI, H1, H2, B, M, N>(&self.v, row)?;
+        let origin = format!(
+            "checkpoint {} ({} at {} environment steps, params_sha256 {})",
+            self.v.dir.display(),
+            self.v.meta.settings.task,
+            self.v.meta.env_steps,
+            self.v.meta.params_sha256
+        );
+        let mut src = String::new();
+        mpo_core::export::write_actor_source(&learner.live.actor, &origin, &mut src)
+            .expect("formatting into a String cannot fail");
+        let io = |e: std::io::Error| Error::Io {
+            path: self.out.clone(),
+            source: e,
+        };
+        let io = &io;
+        std::fs::create_dir_all(&self.out).map_err(io)?;
+        let policy = self.out.join("policy.rs");
+        std::fs::write(&policy, src).map_err(io)?;
+        Ok(ExportSummary {
+            task: self.v.meta.settings.task.clone(),
+            checkpoint_env_steps: self.v.meta.env_steps,
+            policy,
+            obs: OBS,
+            act: ACT,
+            hidden: [H1, H2],
+            parameters: learner.live.actor.len(),
+        })
+    }
+}
+
+/// `mpo export`: the checkpoint's online policy as Rust source for the firmware.
+pub fn export(args: &ExportArgs) -> Result<ExportSummary, Error> {
+    let v = checkpoint::open(&args.checkpoint)?;
+    let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
+    tasks::visit(
+        &task,
+        &net,
+        ExportVisitor {
+            v,
+            out: args.out.clone(),
+        },
+    )?
 }
 
 /// `mpo eval`.

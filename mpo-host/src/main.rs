@@ -35,6 +35,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             println!("{}", serde_json::to_string(&s)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Export(args) => {
+            let s = commands::export(&args)?;
+            println!("{}", serde_json::to_string(&s)?);
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Plot(args) => {
             commands::plot(&args)?;
             Ok(ExitCode::SUCCESS)
