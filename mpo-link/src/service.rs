@@ -208,38 +208,11 @@ impl Services {
         // Observations and actions: only the newest one matters, so small buffers that
         // overwrite the oldest entry; no history (a new controller must not answer old
         // requests).
-        let obs = node
-            .service_builder(&run.service_name("obs")?)
-            .publish_subscribe::<ObsMsg>()
-            .enable_safe_overflow(true)
-            .subscriber_max_buffer_size(4)
-            .history_size(0)
-            .max_publishers(4)
-            .max_subscribers(4)
-            .open_or_create()
-            .map_err(err("obs service"))?;
-        let act = node
-            .service_builder(&run.service_name("act")?)
-            .publish_subscribe::<ActMsg>()
-            .enable_safe_overflow(true)
-            .subscriber_max_buffer_size(4)
-            .history_size(0)
-            .max_publishers(4)
-            .max_subscribers(4)
-            .open_or_create()
-            .map_err(err("act service"))?;
+        let obs = pub_sub::<ObsMsg>(&node, run, "obs", 4, 0)?;
+        let act = pub_sub::<ActMsg>(&node, run, "act", 4, 0)?;
         // Parameters: the history keeps the newest complete generation, so a controller that
         // (re)starts after a push still receives it.
-        let params = node
-            .service_builder(&run.service_name("params")?)
-            .publish_subscribe::<ParamChunk>()
-            .enable_safe_overflow(true)
-            .subscriber_max_buffer_size(MAX_BLOCKS)
-            .history_size(MAX_BLOCKS)
-            .max_publishers(4)
-            .max_subscribers(4)
-            .open_or_create()
-            .map_err(err("params service"))?;
+        let params = pub_sub::<ParamChunk>(&node, run, "params", MAX_BLOCKS, MAX_BLOCKS)?;
         let to_controller = node
             .service_builder(&run.service_name("to-controller")?)
             .event()
@@ -393,4 +366,28 @@ impl ControllerPorts {
 /// Time left until `deadline_ns` (zero when passed).
 pub(crate) fn remaining(deadline_ns: u64) -> Duration {
     Duration::from_nanos(deadline_ns.saturating_sub(monotonic_ns()))
+}
+
+/// Opens (or creates) the run's publish-subscribe service `name` for `T`: overflow drops the
+/// oldest sample, `buffer` samples per subscriber, `history` kept for late subscribers.
+fn pub_sub<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<ipc::Service>,
+    run: &RunId,
+    name: &str,
+    buffer: usize,
+    history: usize,
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>,
+    LinkError,
+> {
+    let what = format!("{name} service");
+    node.service_builder(&run.service_name(name)?)
+        .publish_subscribe::<T>()
+        .enable_safe_overflow(true)
+        .subscriber_max_buffer_size(buffer)
+        .history_size(history)
+        .max_publishers(4)
+        .max_subscribers(4)
+        .open_or_create()
+        .map_err(err(&what))
 }
