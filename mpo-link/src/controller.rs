@@ -67,6 +67,25 @@ pub struct ControllerStats {
     pub swaps: u64,
 }
 
+impl core::fmt::Display for ControllerStats {
+    /// The `stats ...` line both controller binaries print on exit.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let r = &self.rejections;
+        write!(
+            f,
+            "stats answered={} superseded={} swaps={} rejected_length={} rejected_non_finite={} \
+             rejected_sequence={} rejected_corrupt={}",
+            self.answered,
+            self.superseded,
+            self.swaps,
+            r.length,
+            r.non_finite,
+            r.sequence,
+            r.corrupt
+        )
+    }
+}
+
 /// Assembles parameter blocks into a staging policy and verifies the whole vector.
 struct Assembler<P: Params> {
     staging: Box<P>,

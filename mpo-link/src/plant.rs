@@ -10,6 +10,7 @@
 use core::time::Duration;
 
 use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::FileDescriptorBased;
 use mpo_core::params::Params;
 
 use crate::messages::{
@@ -94,13 +95,15 @@ pub struct Plant {
     req: ObsMsg,
     /// One parameter block being built (16 KiB: kept on the heap).
     chunk: Box<ParamChunk>,
-    miss_streak: u32,
 }
 
 impl Drop for Plant {
     fn drop(&mut self) {
-        // Release the ports first so the run's files go, then the counter segment if the
-        // controller is gone too.
+        // Clear what killed controllers left registered, release the ports so the run's files
+        // go, then the counter segment if the controller is gone too.
+        if let Some(p) = &self.ports {
+            p.cleanup_dead();
+        }
         self.ports = None;
         self.run.remove_if_last();
     }
@@ -128,7 +131,6 @@ impl Plant {
             stats: PlantStats::default(),
             req: bytemuck::Zeroable::zeroed(),
             chunk: bytemuck::zeroed_box(),
-            miss_streak: 0,
         })
     }
 
@@ -244,7 +246,6 @@ impl Plant {
                         let mut action = [0f32; MAX_ACT];
                         action[..a.len()].copy_from_slice(a);
                         self.stats.replies += 1;
-                        self.miss_streak = 0;
                         return Ok(Action {
                             action,
                             log_prob: (m.flags & ACT_SAMPLED != 0).then_some(m.log_prob),
@@ -263,8 +264,26 @@ impl Plant {
             }
             match self.cfg.wait {
                 WaitMode::Event => {
-                    // Coalesced wake-ups are fine: the subscriber is drained after each one.
-                    let _ = self.ports().listen.timed_wait(|_| {}, left);
+                    // Not `Listener::timed_wait`: its timeout goes through the socket layer,
+                    // which rounds up to whole jiffies (a 500 us deadline became 8 ms here,
+                    // stalling the plant for 8 periods per miss). `ppoll` times out on a
+                    // high-resolution timer. Coalesced wake-ups are fine: the subscriber is
+                    // drained after each one.
+                    let listen = &self.ports().listen;
+                    // SAFETY: the descriptor is only polled while the listener owns it.
+                    let fd = unsafe { listen.file_descriptor().native_handle() };
+                    let mut pfd = libc::pollfd {
+                        fd,
+                        events: libc::POLLIN,
+                        revents: 0,
+                    };
+                    let ts = libc::timespec {
+                        tv_sec: left.as_secs() as libc::time_t,
+                        tv_nsec: left.subsec_nanos() as libc::c_long,
+                    };
+                    // SAFETY: one valid pollfd and timespec; a signal just ends the wait early.
+                    unsafe { libc::ppoll(&mut pfd, 1, &ts, core::ptr::null()) };
+                    let _ = listen.try_wait(|_| {});
                 }
                 WaitMode::BusyPoll => core::hint::spin_loop(),
             }
@@ -272,14 +291,11 @@ impl Plant {
     }
 
     fn miss(&mut self, m: Miss) -> Result<Action, Miss> {
+        // A killed controller leaves its ports registered. They are not cleared here: the
+        // scan of dead nodes takes hundreds of milliseconds, hundreds of control periods. A
+        // restarted controller clears them before it opens its ports, and the plant clears
+        // them when it closes (so the run's files go).
         self.stats.misses += 1;
-        self.miss_streak += 1;
-        if self.miss_streak == 10 {
-            // A controller that stays silent is probably dead; a killed one leaves its ports
-            // registered. Clear them once per streak (not on every miss: the scan costs far
-            // more than a control period, and a restarted controller cleans up as well).
-            self.ports().cleanup_dead();
-        }
         Err(m)
     }
 

@@ -90,19 +90,7 @@ fn run() -> Result<(), String> {
         ))
     )
     .map_err(|e| e.to_string())?;
-    let r = stats.rejections;
     // Whoever started us may have closed our stdout already: not an error at shutdown.
-    let _ = writeln!(
-        std::io::stdout(),
-        "stats answered={} superseded={} swaps={} rejected_length={} rejected_non_finite={} \
-         rejected_sequence={} rejected_corrupt={}",
-        stats.answered,
-        stats.superseded,
-        stats.swaps,
-        r.length,
-        r.non_finite,
-        r.sequence,
-        r.corrupt
-    );
+    let _ = writeln!(std::io::stdout(), "{stats}");
     Ok(())
 }
