@@ -4,6 +4,8 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
+use crate::link::ControllerKind;
+
 /// MPO (Maximum a Posteriori Policy Optimisation) on the DeepMind Control Suite.
 #[derive(Debug, Parser)]
 #[command(name = "mpo", version, about, long_about = None)]
@@ -16,7 +18,7 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Train a policy in-process: collect with the sampled policy, learn, evaluate, checkpoint.
+    /// Train a policy: collect with the sampled policy, learn, evaluate, checkpoint.
     ///
     /// Writes into the run directory: config.toml (the resolved configuration), metrics.csv and
     /// metrics.jsonl (one row per evaluation), curve.png and checkpoint/. Prints a one-line JSON
@@ -35,6 +37,109 @@ pub enum Command {
     Tasks,
     /// Draw the learning curves of several runs (e.g. seeds) into one PNG.
     Plot(PlotArgs),
+    /// Run a checkpoint's policy on its task, paced at a control rate (default 1 kHz wall
+    /// clock) or in lockstep, in-process or through a controller process over iceoryx2.
+    ///
+    /// Counts deadline misses (the safe action, zero, is applied and the plant keeps running)
+    /// and reports the round-trip latency and the loop's wake-up lateness. Episode i runs on
+    /// the evaluation seed of `mpo eval`, so in lockstep the returns equal `mpo eval`'s. Each
+    /// episode's environment is built between episodes, outside the paced loop. Prints a
+    /// table on stderr and a JSON summary on stdout; Ctrl-C or SIGTERM stops it cleanly (both
+    /// processes, exit status 130).
+    Run(RunArgs),
+    /// Serve a policy over iceoryx2: the controller process (inference only, as on the robot).
+    ///
+    /// `mpo train/run --controller ipc` start one themselves; start it by hand to attach to
+    /// (`--attach RUN_ID`). It answers with its initial policy until the host pushes
+    /// parameters. Prints `ready` once listening and a `stats ...` line on exit (SIGINT or
+    /// SIGTERM).
+    Controller(ControllerArgs),
+}
+
+/// Where the policy runs, and how the host reaches a controller process.
+#[derive(Debug, Args, Clone)]
+pub struct LinkArgs {
+    /// Where the policy runs: in this process, or in a controller process over iceoryx2 shared
+    /// memory (started by mpo itself unless --attach is given).
+    #[arg(long, value_enum, default_value_t = ControllerKind::InProcess)]
+    pub controller: ControllerKind,
+    /// With --controller ipc: use the controller already serving RUN_ID (`mpo controller
+    /// --run RUN_ID --task ...`) instead of starting one; it is picked up whenever it
+    /// (re)appears.
+    #[arg(long, value_name = "RUN_ID")]
+    pub attach: Option<String>,
+    /// With --controller ipc: how both sides wait for each other: `event` (sleep until
+    /// notified) or `busy-poll` (spin; lowest latency, burns a core: isolated cores only).
+    #[arg(long, value_name = "MODE", default_value = "event", value_parser = ["event", "busy-poll"])]
+    pub wait: String,
+    /// With --controller ipc: deadline of one action request in microseconds; a later answer
+    /// is a miss and the safe action (zero) is applied [default: 100000 in lockstep and
+    /// training, half the period when paced].
+    #[arg(long, value_name = "US")]
+    pub deadline_us: Option<u64>,
+    /// With --attach: seconds to wait for the controller to appear.
+    #[arg(long, value_name = "S", default_value_t = 60.0)]
+    pub connect_timeout: f64,
+}
+
+/// `mpo run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Run directory or checkpoint directory.
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint: PathBuf,
+    /// Controller placement and link.
+    #[command(flatten)]
+    pub link: LinkArgs,
+    /// Control rate in Hz, paced by the wall clock.
+    #[arg(
+        long,
+        value_name = "HZ",
+        default_value_t = 1000.0,
+        conflicts_with = "lockstep"
+    )]
+    pub rate: f64,
+    /// Step as fast as possible instead of pacing: deterministic, the returns equal
+    /// `mpo eval`'s.
+    #[arg(long)]
+    pub lockstep: bool,
+    /// Wall-clock duration in seconds.
+    #[arg(long, value_name = "S", default_value_t = 10.0)]
+    pub seconds: f64,
+    /// Stop after this many environment steps instead of --seconds.
+    #[arg(long, value_name = "N")]
+    pub steps: Option<u64>,
+    /// Evaluation seed (episode i uses environment seed (2^31 + 1000 S + i) mod 2^32)
+    /// [default: the run's seed].
+    #[arg(long, value_name = "S")]
+    pub seed: Option<u32>,
+    /// SCHED_FIFO priority (1-99) for the paced loop and a spawned controller; needs root or
+    /// CAP_SYS_NICE and CAP_IPC_LOCK.
+    #[arg(long, value_name = "PRIO")]
+    pub realtime: Option<i32>,
+    /// No progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+/// `mpo controller`.
+#[derive(Debug, Args)]
+pub struct ControllerArgs {
+    /// Run id to serve: letters, digits and '-' (a host attaches with `--attach RUN_ID`).
+    #[arg(long, value_name = "RUN_ID")]
+    pub run: String,
+    /// Task whose policy size to serve.
+    #[arg(long, default_value = crate::tasks::DEFAULT_TASK)]
+    pub task: String,
+    /// Network variant of the task table row.
+    #[arg(long, default_value = crate::tasks::DEFAULT_NET)]
+    pub net: String,
+    /// `event` or `busy-poll` (must match the host's --wait).
+    #[arg(long, value_name = "MODE", default_value = "event", value_parser = ["event", "busy-poll"])]
+    pub wait: String,
+    /// SCHED_FIFO priority (1-99); not with busy-poll.
+    #[arg(long, value_name = "PRIO")]
+    pub realtime: Option<i32>,
 }
 
 /// `mpo export`.
@@ -94,6 +199,10 @@ pub struct TrainArgs {
     /// No progress bar (it is also hidden when stderr is not a terminal).
     #[arg(long)]
     pub no_progress: bool,
+    /// Controller placement: `--controller ipc` acts through a controller process in
+    /// lockstep, with the same results as in-process training.
+    #[command(flatten)]
+    pub link: LinkArgs,
 }
 
 /// `mpo eval`.

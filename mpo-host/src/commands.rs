@@ -3,12 +3,15 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
 use serde::Serialize;
 
 use crate::checkpoint::{self, CheckpointError, Verified};
-use crate::cli::{EvalArgs, ExportArgs, PlotArgs, TrainArgs};
+use crate::cli::{ControllerArgs, EvalArgs, ExportArgs, PlotArgs, RunArgs, TrainArgs};
 use crate::eval::{evaluate, mean_std};
+use crate::link::LinkOptions;
+use crate::run::{Limit, Pacing, RunError, RunRequest, RunSummary};
 use crate::settings::{self, Settings, SettingsError};
 use crate::tasks::{self, Row, RowVisitor, UnknownTask};
 use crate::train::{Summary, TrainError, TrainRequest, TrainVisitor};
@@ -29,6 +32,12 @@ pub enum Error {
     /// Training.
     #[error(transparent)]
     Train(#[from] TrainError),
+    /// Running a policy (`mpo run`).
+    #[error(transparent)]
+    Run(#[from] RunError),
+    /// The controller process (`mpo controller`).
+    #[error("controller: {0}")]
+    Controller(String),
     /// Simulator.
     #[error("simulator: {0}")]
     Sim(#[from] sim_bridge::SimError),
@@ -175,6 +184,10 @@ pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Veri
 
 /// `mpo train`.
 pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error> {
+    // Lockstep through a controller: a generous deadline, so a loaded machine does not turn
+    // into misses (which would make the run differ from an in-process one).
+    let link = LinkOptions::from_args(&args.link, Duration::from_millis(100), None)
+        .map_err(SettingsError::Invalid)?;
     let (settings, out, resume) = resolve_train(args)?;
     let (task, net) = (settings.task.clone(), settings.net.clone());
     let req = TrainRequest {
@@ -183,6 +196,7 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
         resume,
         progress: !args.no_progress,
         interrupt,
+        link,
     };
     Ok(tasks::visit(&task, &net, TrainVisitor(req))??)
 }
@@ -242,6 +256,141 @@ impl RowVisitor for EvalVisitor {
             returns,
         })
     }
+}
+
+struct RunVisitor<'a> {
+    v: Verified,
+    req: RunRequest<'a>,
+}
+
+impl RowVisitor for RunVisitor<'_> {
+    type Out = Result<RunSummary, Error>;
+    fn visit<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+        const B: usize,
+        const M: usize,
+        const N: usize,
+        const CAP: usize,
+    >(
+        self,
+        row: &'static Row,
+    ) -> Self::Out {
+        let learner = load_learner::<OBS, ACT, TRI, H1, H2, B, M, N>(&self.v, row)?;
+        Ok(crate::run::run(&learner.live.actor, self.req)?)
+    }
+}
+
+/// `mpo run`.
+pub fn run(args: &RunArgs, interrupt: &AtomicBool) -> Result<RunSummary, Error> {
+    let invalid = |m: String| Error::from(SettingsError::Invalid(m));
+    let pacing = if args.lockstep {
+        Pacing::Lockstep
+    } else if args.rate.is_finite() && args.rate > 0.0 && args.rate <= 100_000.0 {
+        Pacing::Paced(args.rate)
+    } else {
+        return Err(invalid(format!(
+            "--rate {} must be in (0, 100000] Hz",
+            args.rate
+        )));
+    };
+    let limit = match args.steps {
+        Some(0) => return Err(invalid("--steps must be at least 1".into())),
+        Some(n) => Limit::Steps(n),
+        None if args.seconds.is_finite() && args.seconds > 0.0 => Limit::Seconds(args.seconds),
+        None => return Err(invalid("--seconds must be positive".into())),
+    };
+    if let Some(p) = args.realtime {
+        if !(1..=99).contains(&p) {
+            return Err(invalid(format!("--realtime {p}: priorities are 1-99")));
+        }
+        if args.link.wait == "busy-poll" {
+            return Err(invalid(
+                "--realtime with --wait busy-poll would starve the core".into(),
+            ));
+        }
+    }
+    // Paced: an answer later than half a period leaves too little of the period to step the
+    // plant, so it counts as a miss.
+    let default_deadline = match pacing {
+        Pacing::Lockstep => Duration::from_millis(100),
+        Pacing::Paced(hz) => Duration::from_secs_f64(0.5 / hz),
+    };
+    let link =
+        LinkOptions::from_args(&args.link, default_deadline, args.realtime).map_err(invalid)?;
+    let v = checkpoint::open(&args.checkpoint)?;
+    let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
+    let req = RunRequest {
+        task: task.clone(),
+        net: net.clone(),
+        checkpoint_env_steps: v.meta.env_steps,
+        seed: args.seed.unwrap_or(v.meta.settings.seed),
+        pacing,
+        limit,
+        link,
+        realtime: args.realtime,
+        progress: !args.no_progress,
+        interrupt,
+    };
+    tasks::visit(&task, &net, RunVisitor { v, req })?
+}
+
+struct ControllerVisitor {
+    opts: mpo_link::controller::ControllerOptions,
+}
+
+impl RowVisitor for ControllerVisitor {
+    type Out = Result<mpo_link::controller::ControllerStats, Error>;
+    fn visit<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const H1: usize,
+        const H2: usize,
+        const B: usize,
+        const M: usize,
+        const N: usize,
+        const CAP: usize,
+    >(
+        self,
+        _row: &'static Row,
+    ) -> Self::Out {
+        use std::io::Write;
+        let ready = || {
+            let mut out = std::io::stdout();
+            let _ = writeln!(out, "ready");
+            let _ = out.flush();
+        };
+        mpo_link::controller::serve::<OBS, ACT, TRI, H1, H2>(&self.opts, ready)
+            .map_err(|e| Error::Controller(e.to_string()))
+    }
+}
+
+/// `mpo controller`: serves the run until SIGINT/SIGTERM; returns its counters.
+pub fn controller(args: &ControllerArgs) -> Result<mpo_link::controller::ControllerStats, Error> {
+    let run = mpo_link::RunId::parse(&args.run).map_err(|e| Error::Controller(e.to_string()))?;
+    let wait = mpo_link::WaitMode::parse(&args.wait)
+        .ok_or_else(|| Error::Controller(format!("unknown wait mode {:?}", args.wait)))?;
+    let row = tasks::row(&args.task, &args.net)?;
+    if let Some(p) = args.realtime {
+        if wait == mpo_link::WaitMode::BusyPoll {
+            return Err(Error::Controller(
+                "--realtime with --wait busy-poll would starve the core".into(),
+            ));
+        }
+        mpo_link::realtime::enter(p).map_err(Error::Controller)?;
+    }
+    mpo_link::controller::install_stop_handler();
+    let opts = mpo_link::controller::ControllerOptions {
+        run,
+        wait,
+        seed: 0,
+        init_std: row.mpo.init_std as f32,
+    };
+    tasks::visit(&args.task, &args.net, ControllerVisitor { opts })?
 }
 
 /// A learner of the row's types holding the checkpoint's networks (sizes checked against the

@@ -31,6 +31,17 @@ pub fn evaluate<
     seed: u32,
     episodes: u32,
 ) -> Result<Vec<f64>, SimError> {
+    evaluate_with(task, seed, episodes, |o, a| learner.mean_action(o, a))
+}
+
+/// Returns of `episodes` evaluation episodes of the policy `act` (observation to action; the
+/// action is clipped to the actuator range [-1, 1] before it is applied).
+pub fn evaluate_with<const OBS: usize, const ACT: usize>(
+    task: &str,
+    seed: u32,
+    episodes: u32,
+    mut act_fn: impl FnMut(&[f32; OBS], &mut [f32; ACT]),
+) -> Result<Vec<f64>, SimError> {
     let mut returns = Vec::with_capacity(episodes as usize);
     let mut obs64 = [0f64; OBS];
     let mut obs = [0f32; OBS];
@@ -44,7 +55,7 @@ pub fn evaluate<
             for (o, x) in obs.iter_mut().zip(&obs64) {
                 *o = *x as f32;
             }
-            learner.mean_action(&obs, &mut act);
+            act_fn(&obs, &mut act);
             for (o, a) in act64.iter_mut().zip(&act) {
                 *o = a.clamp(-1.0, 1.0) as f64;
             }

@@ -30,6 +30,29 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 ExitCode::SUCCESS
             })
         }
+        Command::Run(args) => {
+            ctrlc::set_handler(|| {
+                if INTERRUPT.swap(true, Ordering::SeqCst) {
+                    std::process::exit(130);
+                }
+            })
+            .context("installing the Ctrl-C handler")?;
+            let s = commands::run(&args, &INTERRUPT)?;
+            eprint!("{}", mpo_host::run::table(&s));
+            println!("{}", serde_json::to_string(&s)?);
+            Ok(if s.interrupted {
+                ExitCode::from(130)
+            } else {
+                ExitCode::SUCCESS
+            })
+        }
+        Command::Controller(args) => {
+            let stats = commands::controller(&args)?;
+            // Whoever started us may have closed our stdout already: not an error at shutdown.
+            use std::io::Write;
+            let _ = writeln!(std::io::stdout(), "{stats}");
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Eval(args) => {
             let s = commands::eval(&args)?;
             println!("{}", serde_json::to_string(&s)?);

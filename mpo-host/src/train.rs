@@ -21,7 +21,8 @@ use serde::Serialize;
 use sim_bridge::{Environment, SimError};
 
 use crate::checkpoint::{self, CheckpointError, Counters, Meta, Verified};
-use crate::eval::{evaluate, mean_std};
+use crate::eval::{evaluate, evaluate_with, mean_std};
+use crate::link::{Link, LinkOptions, LinkReport, LinkSetupError};
 use crate::metrics::{self, MetricsRow, StatsAccumulator};
 use crate::settings::{Schedule, Settings};
 use crate::tasks::{Row, RowVisitor};
@@ -68,6 +69,12 @@ pub enum TrainError {
         /// Cause.
         source: std::io::Error,
     },
+    /// The controller process could not be started or reached.
+    #[error(transparent)]
+    LinkSetup(#[from] LinkSetupError),
+    /// Pushing parameters to the controller failed.
+    #[error("controller link: {0}")]
+    Link(#[from] mpo_link::LinkError),
     /// Sizes of the task table and the simulator disagree (a bug in the table).
     #[error("internal: {0}")]
     Internal(String),
@@ -97,6 +104,9 @@ pub struct Summary {
     pub out: String,
     /// True when Ctrl-C ended the run early (at an episode boundary, checkpoint written).
     pub interrupted: bool,
+    /// The controller link's counters with `--controller ipc` (absent in-process).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controller: Option<LinkReport>,
 }
 
 /// What `mpo train` was asked to do.
@@ -111,6 +121,8 @@ pub struct TrainRequest<'a> {
     pub progress: bool,
     /// Set by the Ctrl-C handler: finish the current episode, checkpoint, stop.
     pub interrupt: &'a AtomicBool,
+    /// Act through a controller process (`--controller ipc`) instead of in-process.
+    pub link: Option<LinkOptions>,
 }
 
 /// Why one step of [`Trainer::collect`] failed.
@@ -120,6 +132,8 @@ pub enum StepError {
     Sim(SimError),
     /// A learner update was rejected (or reported a non-finite statistic).
     Update(String),
+    /// Parameters could not be pushed to the controller process.
+    Link(mpo_link::LinkError),
 }
 
 /// The act-and-learn state of a run with the row's types.
@@ -148,6 +162,8 @@ pub struct Trainer<
     /// Episodes completed.
     pub episodes: u64,
     in_episode: bool,
+    /// Steps taken in the current episode (labels controller requests).
+    episode_step: u32,
     obs64: [f64; OBS],
     next64: [f64; OBS],
     act64: [f64; ACT],
@@ -157,6 +173,10 @@ pub struct Trainer<
     schedule: Schedule,
     gamma: f32,
     action_penalty: f32,
+    /// The controller process, when acting through one (`--controller ipc`).
+    pub link: Option<Link>,
+    /// The controller's policy is older than the learner's (pushed before the next request).
+    params_dirty: bool,
 }
 
 impl<
@@ -226,6 +246,7 @@ impl<
             env_steps,
             episodes,
             in_episode: false,
+            episode_step: 0,
             obs64,
             next64: [0.0; OBS],
             act64: [0.0; ACT],
@@ -234,6 +255,8 @@ impl<
             schedule: settings.schedule,
             gamma: settings.mpo.to_config().gamma,
             action_penalty: settings.schedule.action_penalty as f32,
+            link: None,
+            params_dirty: true,
         })
     }
 
@@ -242,8 +265,49 @@ impl<
         !self.in_episode
     }
 
+    /// Acts through `link` from now on (the learner's current policy is pushed before the next
+    /// request).
+    pub fn attach(&mut self, link: Link) {
+        self.link = Some(link);
+        self.params_dirty = true;
+    }
+
+    /// Pushes the learner's policy to the controller if it changed since the last push.
+    fn sync_controller(&mut self) -> Result<(), mpo_link::LinkError> {
+        if let Some(link) = self.link.as_mut()
+            && self.params_dirty
+        {
+            link.push(&self.learner.live.actor)?;
+            self.params_dirty = false;
+        }
+        Ok(())
+    }
+
+    /// Returns of the evaluation episodes of the current policy's mean action: in-process, or
+    /// through the controller process (a missed request applies the safe action).
+    pub fn evaluate(
+        &mut self,
+        task: &str,
+        seed: u32,
+        episodes: u32,
+    ) -> Result<Vec<f64>, TrainError> {
+        self.sync_controller()?;
+        Ok(match self.link.as_mut() {
+            Some(link) => evaluate_with(
+                task,
+                seed,
+                episodes,
+                |o: &[f32; OBS], a: &mut [f32; ACT]| {
+                    link.act(o, a);
+                },
+            )?,
+            None => evaluate(&self.learner, task, seed, episodes)?,
+        })
+    }
+
     /// Takes `steps` environment steps, storing each transition and running the learner
-    /// updates the schedule calls for. Allocates nothing.
+    /// updates the schedule calls for. Allocates nothing (through a controller process:
+    /// nothing while it answers).
     pub fn collect(&mut self, steps: u64) -> Result<(), StepError> {
         let mut obs = [0f32; OBS];
         let mut act = [0f32; ACT];
@@ -252,6 +316,7 @@ impl<
                 self.env.reset(&mut self.obs64);
                 self.replay.begin_episode();
                 self.in_episode = true;
+                self.episode_step = 0;
             }
             for (o, x) in obs.iter_mut().zip(&self.obs64) {
                 *o = *x as f32;
@@ -261,6 +326,27 @@ impl<
                     *a = self.collector.uniform_range(-1.0, 1.0);
                 }
                 -(ACT as f32) * core::f32::consts::LN_2
+            } else if self.link.is_some() {
+                self.sync_controller().map_err(StepError::Link)?;
+                let link = self.link.as_mut().expect("checked");
+                link.set_episode_step(self.episodes, self.episode_step);
+                // The same draws `Gaussian::sample` makes in-process: the controller computes
+                // `mu + L z` and its log-density with the same code and parameters, so the
+                // action and the stored log-probability are bit-identical to in-process ones.
+                let mut z = [0f32; ACT];
+                self.collector.fill_normal(&mut z);
+                let floor = self.learner.cfg.std_floor;
+                match link.act_sampled(&obs, &z, floor, &mut act) {
+                    Some((_, log_prob)) => log_prob,
+                    // Missed: `act` is the safe action (zero). Stored with its density under
+                    // the current policy (only Retrace would use it).
+                    None => self
+                        .learner
+                        .live
+                        .actor
+                        .distribution(&obs, floor)
+                        .log_prob(&act),
+                }
             } else {
                 self.learner
                     .sample_action(&obs, &mut self.collector, &mut act)
@@ -291,6 +377,7 @@ impl<
             self.replay.push(&t);
             core::mem::swap(&mut self.obs64, &mut self.next64);
             self.env_steps += 1;
+            self.episode_step += 1;
             if step.last {
                 self.in_episode = false;
                 self.episodes += 1;
@@ -325,6 +412,7 @@ impl<
         }
         match self.learner.update() {
             Ok(stats) => {
+                self.params_dirty = true;
                 if let Some((name, v)) = metrics::first_non_finite(&stats) {
                     return Err(format!("learner statistic {name} = {v}"));
                 }
@@ -395,6 +483,19 @@ fn run<
     let out = req.out;
     let mut t =
         Trainer::<OBS, ACT, TRI, H1, H2, B, M, N, CAP>::new(&settings, req.resume.as_ref())?;
+    let link_deadline = req.link.as_ref().map(|o| o.deadline);
+    if let Some(opts) = &req.link {
+        let link = Link::start(&settings.task, &settings.net, OBS, ACT, opts)?;
+        eprintln!(
+            "acting through controller process {} (run id {}, {} wait)",
+            link.controller_pid()
+                .map(|p| format!("pid {p}"))
+                .unwrap_or_else(|| "attached".into()),
+            link.run_id(),
+            opts.wait.name()
+        );
+        t.attach(link);
+    }
     let (mut metrics_rows, wall0, mut last_checkpoint) = match &req.resume {
         Some(v) => (
             v.meta.metrics.clone(),
@@ -440,8 +541,7 @@ fn run<
                         metrics_rows: &mut Vec<MetricsRow>,
                         mark: (f64, u64, u64)|
      -> Result<(f64, f64), TrainError> {
-        let returns = evaluate(
-            &t.learner,
+        let returns = t.evaluate(
             &settings.task,
             settings.seed,
             settings.schedule.eval_episodes,
@@ -540,6 +640,7 @@ fn run<
             pb.abandon();
             return Err(match e {
                 StepError::Sim(s) => TrainError::Sim(s),
+                StepError::Link(l) => TrainError::Link(l),
                 StepError::Update(what) => TrainError::NonFinite {
                     update: t.learner.updates,
                     env_steps: t.env_steps,
@@ -548,6 +649,11 @@ fn run<
                     dir,
                 },
             });
+        }
+        if let Some(link) = t.link.as_mut() {
+            for e in link.take_events() {
+                log(&pb, &e);
+            }
         }
         pb.set_position(t.env_steps);
         let now = wall(&started);
@@ -602,6 +708,21 @@ fn run<
         }
     }
     pb.finish_and_clear();
+    let controller = t
+        .link
+        .take()
+        .map(|l| l.finish(link_deadline.unwrap_or_default()));
+    if let Some(c) = &controller
+        && c.misses > 0
+    {
+        log(
+            &pb,
+            &format!(
+                "controller: {} of {} requests missed (safe action applied); the run differs from an in-process one",
+                c.misses, c.requests
+            ),
+        );
+    }
     Ok(Summary {
         task: settings.task.clone(),
         seed: settings.seed,
@@ -613,5 +734,6 @@ fn run<
         params_sha256: checkpoint::params_sha256(&t.learner.live.actor, &t.learner.live.critic),
         out: out.display().to_string(),
         interrupted,
+        controller,
     })
 }
