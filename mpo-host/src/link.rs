@@ -178,6 +178,7 @@ pub struct Link {
     plant: Option<Plant>,
     run: RunId,
     wait: WaitMode,
+    deadline: Duration,
     spawned: Option<Spawned>,
     restarts: u64,
     /// Consecutive misses so far (0 while the controller answers).
@@ -241,6 +242,7 @@ impl Link {
             plant: Some(plant),
             run,
             wait: opts.wait,
+            deadline: opts.deadline,
             spawned,
             restarts: 0,
             streak: 0,
@@ -403,7 +405,7 @@ impl Link {
             }
             .into(),
             wait: self.wait.name().into(),
-            deadline_us: 0.0,
+            deadline_us: self.deadline.as_secs_f64() * 1e6,
             requests: p.requests,
             replies: p.replies,
             misses: p.misses,
@@ -419,9 +421,8 @@ impl Link {
 
     /// Stops a spawned controller (SIGTERM; an attached one keeps running), closes the link
     /// and reports, including the run's files still present afterwards.
-    pub fn finish(mut self, deadline: Duration) -> LinkReport {
+    pub fn finish(mut self) -> LinkReport {
         let mut report = self.report();
-        report.deadline_us = deadline.as_secs_f64() * 1e6;
         report.controller_stats = self.spawned.take().and_then(Spawned::stop);
         self.plant = None;
         self.run.remove_if_last();

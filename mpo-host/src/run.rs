@@ -176,23 +176,6 @@ pub fn load_average() -> Option<[f64; 3]> {
     Some([it.next()??, it.next()??, it.next()??])
 }
 
-fn sleep_until_ns(t_ns: u64) {
-    let ts = libc::timespec {
-        tv_sec: (t_ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (t_ns % 1_000_000_000) as libc::c_long,
-    };
-    // SAFETY: a valid timespec; an interrupted sleep returns early and the caller checks the
-    // interrupt flag.
-    unsafe {
-        libc::clock_nanosleep(
-            libc::CLOCK_MONOTONIC,
-            libc::TIMER_ABSTIME,
-            &ts,
-            core::ptr::null_mut(),
-        )
-    };
-}
-
 fn histogram() -> Histogram<u64> {
     // 1 ns to 100 s at 3 significant digits: ~200 KiB, allocated once.
     Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("valid histogram bounds")
@@ -298,7 +281,7 @@ pub fn run<
                 break 'episodes;
             }
             if period_ns > 0 {
-                sleep_until_ns(next);
+                mpo_link::realtime::sleep_until(next);
                 let woke = monotonic_ns();
                 lateness.saturating_record(woke.saturating_sub(next).max(1));
             }
@@ -386,7 +369,7 @@ pub fn run<
         for e in l.take_events() {
             eprintln!("{e}");
         }
-        l.finish(deadline.unwrap_or_default())
+        l.finish()
     });
     let (return_mean, return_std) = if returns.is_empty() {
         (0.0, 0.0)

@@ -483,7 +483,6 @@ fn run<
     let out = req.out;
     let mut t =
         Trainer::<OBS, ACT, TRI, H1, H2, B, M, N, CAP>::new(&settings, req.resume.as_ref())?;
-    let link_deadline = req.link.as_ref().map(|o| o.deadline);
     if let Some(opts) = &req.link {
         let link = Link::start(&settings.task, &settings.net, OBS, ACT, opts)?;
         eprintln!(
@@ -708,10 +707,7 @@ fn run<
         }
     }
     pb.finish_and_clear();
-    let controller = t
-        .link
-        .take()
-        .map(|l| l.finish(link_deadline.unwrap_or_default()));
+    let controller = t.link.take().map(Link::finish);
     if let Some(c) = &controller
         && c.misses > 0
     {

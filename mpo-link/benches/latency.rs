@@ -186,22 +186,6 @@ fn uds(n: usize, obs: &[[f32; 15]]) -> Row {
     }
 }
 
-fn sleep_until(t_ns: u64) {
-    let ts = libc::timespec {
-        tv_sec: (t_ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (t_ns % 1_000_000_000) as libc::c_long,
-    };
-    // SAFETY: valid timespec; an interrupted sleep just returns early.
-    unsafe {
-        libc::clock_nanosleep(
-            libc::CLOCK_MONOTONIC,
-            libc::TIMER_ABSTIME,
-            &ts,
-            core::ptr::null_mut(),
-        )
-    };
-}
-
 /// Paced at 1 kHz: each period's request must be answered before the next period starts.
 /// With `rt`, both sides run under `SCHED_FIFO` at that priority.
 fn paced(seconds: u64, obs: &[[f32; 15]], rt: Option<i32>) {
@@ -246,7 +230,7 @@ fn paced(seconds: u64, obs: &[[f32; 15]], rt: Option<i32>) {
     let start = monotonic_ns() + period;
     for (k, o) in obs.iter().cycle().take(n).enumerate() {
         let due = start + k as u64 * period;
-        sleep_until(due);
+        mpo_link::realtime::sleep_until(due);
         let woke = monotonic_ns();
         late.push(woke.saturating_sub(due));
         // The reply must arrive before the next period begins.
