@@ -1,6 +1,6 @@
 //! The controller: mpo-core inference behind iceoryx2 and nothing else.
 //!
-//! One loop, single-threaded: wait (WaitSet or spin), apply any complete parameter generation,
+//! One loop, single-threaded: wait (`ppoll` on the listener, or spin), apply any complete parameter generation,
 //! answer the newest observation, repeat. Parameters are assembled into a second policy and
 //! swapped in by exchanging two boxes between requests, so no request ever sees a half-written
 //! policy. Everything is allocated before the loop starts.
@@ -8,7 +8,6 @@
 use core::sync::atomic::{AtomicBool, Ordering};
 use core::time::Duration;
 
-use iceoryx2::prelude::*;
 use mpo_core::actor::Actor;
 use mpo_core::params::Params;
 use mpo_core::rng::Rng;
@@ -18,7 +17,7 @@ use crate::messages::{
     Rejections, checksum,
 };
 use crate::plant::ACT_REJECTED;
-use crate::service::{ControllerPorts, LinkError, RunId, WaitMode, err, monotonic_ns};
+use crate::service::{ControllerPorts, LinkError, RunId, WaitMode, monotonic_ns, wait_for_event};
 
 static STOP: AtomicBool = AtomicBool::new(false);
 
@@ -28,9 +27,9 @@ extern "C" fn on_signal(_: libc::c_int) {
 
 /// Installs SIGINT and SIGTERM handlers that only set a flag the loop polls.
 ///
-/// iceoryx2's own handling is disabled on our node and WaitSet: a WaitSet with it enabled
-/// consumes the signal and reports it only through its return value, and the busy-poll loop
-/// has no WaitSet at all. No `SA_RESTART`, so a blocking wait returns early on a signal.
+/// iceoryx2's own handling is disabled on our node (with it enabled, iceoryx2 consumes the
+/// signal and reports it only through the return value of its waits). No `SA_RESTART`, so a
+/// blocking wait returns early on a signal.
 pub fn install_stop_handler() {
     // SAFETY: the handler only stores to an atomic (async-signal-safe); `sa` is fully
     // initialised before use.
@@ -194,13 +193,6 @@ pub fn serve<
     let mut reply: ActMsg = bytemuck::Zeroable::zeroed();
     let mut latest: ObsMsg = bytemuck::Zeroable::zeroed();
 
-    let waitset = WaitSetBuilder::new()
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
-        .map_err(err("waitset"))?;
-    let guard = waitset
-        .attach_notification(&ports.listen)
-        .map_err(err("attach listener"))?;
     ready();
 
     // Bounded waits: the stop flag is checked at least this often even if a signal arrived
@@ -208,18 +200,7 @@ pub fn serve<
     let tick = Duration::from_millis(50);
     while !stop_requested() {
         if opts.wait == WaitMode::Event {
-            let r = waitset.wait_and_process_once_with_timeout(
-                |id| {
-                    if id.has_event_from(&guard) {
-                        let _ = ports.listen.try_wait(|_| {});
-                    }
-                    CallbackProgression::Continue
-                },
-                tick,
-            );
-            if r.is_err() {
-                break;
-            }
+            wait_for_event(&ports.listen, tick);
         }
         // Parameters first: a push made before a request applies to that request.
         while let Ok(Some(sample)) = ports.params.receive() {
@@ -290,8 +271,6 @@ pub fn serve<
             let _ = ports.notify.notify();
         }
     }
-    drop(guard);
-    drop(waitset);
     drop(ports);
     opts.run.remove_if_last();
     Ok(stats)

@@ -10,14 +10,15 @@
 use core::time::Duration;
 
 use iceoryx2::port::update_connections::UpdateConnections;
-use iceoryx2::prelude::FileDescriptorBased;
 use mpo_core::params::Params;
 
 use crate::messages::{
     ACT_SAMPLED, ActMsg, CHECKSUM_SEED, CHUNK, MAX_ACT, MAX_BLOCKS, MAX_OBS, OBS_SAMPLE, ObsMsg,
     ParamChunk, Reject, Rejections, checksum,
 };
-use crate::service::{LinkError, PlantPorts, RunId, WaitMode, err, monotonic_ns, remaining};
+use crate::service::{
+    LinkError, PlantPorts, RunId, WaitMode, err, monotonic_ns, remaining, wait_for_event,
+};
 
 /// Reply flag set by the controller when it rejected the request (the action is zero and must
 /// not be used).
@@ -263,28 +264,7 @@ impl Plant {
                 return self.miss(Miss::Timeout);
             }
             match self.cfg.wait {
-                WaitMode::Event => {
-                    // Not `Listener::timed_wait`: its timeout goes through the socket layer,
-                    // which rounds up to whole jiffies (a 500 us deadline became 8 ms here,
-                    // stalling the plant for 8 periods per miss). `ppoll` times out on a
-                    // high-resolution timer. Coalesced wake-ups are fine: the subscriber is
-                    // drained after each one.
-                    let listen = &self.ports().listen;
-                    // SAFETY: the descriptor is only polled while the listener owns it.
-                    let fd = unsafe { listen.file_descriptor().native_handle() };
-                    let mut pfd = libc::pollfd {
-                        fd,
-                        events: libc::POLLIN,
-                        revents: 0,
-                    };
-                    let ts = libc::timespec {
-                        tv_sec: left.as_secs() as libc::time_t,
-                        tv_nsec: left.subsec_nanos() as libc::c_long,
-                    };
-                    // SAFETY: one valid pollfd and timespec; a signal just ends the wait early.
-                    unsafe { libc::ppoll(&mut pfd, 1, &ts, core::ptr::null()) };
-                    let _ = listen.try_wait(|_| {});
-                }
+                WaitMode::Event => wait_for_event(&self.ports().listen, left),
                 WaitMode::BusyPoll => core::hint::spin_loop(),
             }
         }
