@@ -10,6 +10,7 @@ pub mod commands;
 pub mod eval;
 pub mod link;
 pub mod metrics;
+pub mod outage_log;
 pub mod plot;
 pub mod run;
 pub mod settings;

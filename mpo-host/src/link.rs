@@ -22,6 +22,8 @@ use mpo_core::params::Params;
 use mpo_link::{Miss, Plant, PlantConfig, RunId, WaitMode};
 use serde::{Deserialize, Serialize};
 
+use crate::outage_log::OutageLog;
+
 /// Where the policy runs while training or running a checkpoint.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -181,11 +183,8 @@ pub struct Link {
     deadline: Duration,
     spawned: Option<Spawned>,
     restarts: u64,
-    /// Consecutive misses so far (0 while the controller answers).
-    streak: u64,
-    /// Lines to log (only written when something goes wrong, so the loop stays
-    /// allocation-free while the controller answers).
-    events: Vec<String>,
+    /// Misses, recoveries and restarts as log lines.
+    log: OutageLog,
 }
 
 impl Link {
@@ -245,8 +244,7 @@ impl Link {
             deadline: opts.deadline,
             spawned,
             restarts: 0,
-            streak: 0,
-            events: Vec::new(),
+            log: OutageLog::new(),
         };
         link.wait_connected(opts.connect_timeout, task, net)?;
         Ok(link)
@@ -329,29 +327,17 @@ impl Link {
     fn account(&mut self, r: Result<mpo_link::Action, Miss>) -> Option<mpo_link::Action> {
         match r {
             Ok(a) => {
-                if self.streak > 0 {
-                    self.events.push(format!(
-                        "controller: answering again after {} missed request(s)",
-                        self.streak
-                    ));
-                    self.streak = 0;
-                }
+                self.log.answered();
                 Some(a)
             }
             Err(m) => {
-                if self.streak == 0 {
-                    let seq = self.plant().stats().requests;
-                    self.events.push(format!(
-                        "controller: request {seq} missed ({}); applying the safe action (zero) until it answers",
-                        match m {
-                            Miss::Timeout => "no answer by the deadline".to_string(),
-                            Miss::Rejected => "the controller rejected it".to_string(),
-                            Miss::Invalid(r) => format!("invalid request: {r:?}"),
-                            Miss::Send => "send failed".to_string(),
-                        }
-                    ));
-                }
-                self.streak += 1;
+                let seq = self.plant().stats().requests;
+                self.log.missed(seq, Instant::now(), || match m {
+                    Miss::Timeout => "no answer by the deadline".to_string(),
+                    Miss::Rejected => "the controller rejected it".to_string(),
+                    Miss::Invalid(r) => format!("invalid request: {r:?}"),
+                    Miss::Send => "send failed".to_string(),
+                });
                 self.restart_if_dead();
                 None
             }
@@ -372,25 +358,33 @@ impl Link {
         match Spawned::start(&s.exe, &s.args) {
             Ok(new) => {
                 self.restarts += 1;
-                self.events.push(format!(
+                self.log.push(format!(
                     "controller: the process exited ({status}); started it again as pid {} (restart {})",
                     new.child.id(),
                     self.restarts
                 ));
+                // The recovery is logged even if the outage was too short to be.
+                self.log.log_its_end();
                 // The old one is gone: nothing to stop, its pipe is dropped.
                 *s = new;
             }
             Err(e) => {
                 s.started = Instant::now();
-                self.events
+                self.log
                     .push(format!("controller: could not start it again: {e}"));
             }
         }
     }
 
-    /// Log lines since the last call (misses, recoveries, restarts).
+    /// Log lines since the last call (misses, recoveries, restarts); short outages are
+    /// summed up once a second (see [`OutageLog`]).
     pub fn take_events(&mut self) -> Vec<String> {
-        std::mem::take(&mut self.events)
+        self.log.take(Instant::now())
+    }
+
+    /// Every remaining log line (at the end of a run).
+    pub fn drain_events(&mut self) -> Vec<String> {
+        self.log.drain()
     }
 
     /// Counters so far.

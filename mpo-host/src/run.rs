@@ -366,7 +366,7 @@ pub fn run<
 
     let report = link.take().map(|l| {
         let mut l = l;
-        for e in l.take_events() {
+        for e in l.drain_events() {
             eprintln!("{e}");
         }
         l.finish()

@@ -707,7 +707,12 @@ fn run<
         }
     }
     pb.finish_and_clear();
-    let controller = t.link.take().map(Link::finish);
+    let controller = t.link.take().map(|mut l| {
+        for e in l.drain_events() {
+            log(&pb, &e);
+        }
+        l.finish()
+    });
     if let Some(c) = &controller
         && c.misses > 0
     {
