@@ -43,6 +43,8 @@ pub struct LinkOptions {
     pub wait: WaitMode,
     /// Deadline of each request; a later answer is a miss (safe action applied).
     pub deadline: Duration,
+    /// With event waits: how long to spin on an answer before sleeping.
+    pub spin: Duration,
     /// How long to wait for the controller to come up before the first request.
     pub connect_timeout: Duration,
     /// `SCHED_FIFO` priority for a spawned controller.
@@ -71,6 +73,8 @@ pub struct LinkReport {
     pub wait: String,
     /// Request deadline in microseconds.
     pub deadline_us: f64,
+    /// Event waits: spin before sleeping, microseconds.
+    pub spin_us: f64,
     /// Action requests sent.
     pub requests: u64,
     /// Valid answers in time.
@@ -181,6 +185,7 @@ pub struct Link {
     run: RunId,
     wait: WaitMode,
     deadline: Duration,
+    spin: Duration,
     spawned: Option<Spawned>,
     restarts: u64,
     /// Misses, recoveries and restarts as log lines.
@@ -208,6 +213,7 @@ impl Link {
                 act_len,
                 wait: opts.wait,
                 deadline: opts.deadline,
+                spin: opts.spin,
             },
         )?;
         let spawned = match &opts.attach {
@@ -242,6 +248,7 @@ impl Link {
             run,
             wait: opts.wait,
             deadline: opts.deadline,
+            spin: opts.spin,
             spawned,
             restarts: 0,
             log: OutageLog::new(),
@@ -400,6 +407,7 @@ impl Link {
             .into(),
             wait: self.wait.name().into(),
             deadline_us: self.deadline.as_secs_f64() * 1e6,
+            spin_us: self.spin.as_secs_f64() * 1e6,
             requests: p.requests,
             replies: p.replies,
             misses: p.misses,
@@ -452,6 +460,7 @@ impl LinkOptions {
                 (a.attach.is_some(), "--attach"),
                 (a.wait != "event", "--wait"),
                 (a.deadline_us.is_some(), "--deadline-us"),
+                (a.spin_us > 0, "--spin-us"),
             ];
             if let Some((_, flag)) = stray.iter().find(|(given, _)| *given) {
                 return Err(format!("{flag} needs --controller ipc"));
@@ -466,13 +475,18 @@ impl LinkOptions {
             Some(us) => Duration::from_micros(us),
             None => default_deadline,
         };
+        let wait = WaitMode::parse(&a.wait).ok_or(format!("--wait {}", a.wait))?;
+        if a.spin_us > 0 && wait == WaitMode::BusyPoll {
+            return Err("--spin-us applies to --wait event (busy-poll spins anyway)".into());
+        }
         if !(a.connect_timeout.is_finite() && a.connect_timeout > 0.0) {
             return Err("--connect-timeout must be positive".into());
         }
         Ok(Some(Self {
             attach: a.attach.clone(),
-            wait: WaitMode::parse(&a.wait).ok_or(format!("--wait {}", a.wait))?,
+            wait,
             deadline,
+            spin: Duration::from_micros(a.spin_us),
             connect_timeout: Duration::from_secs_f64(a.connect_timeout),
             realtime,
         }))

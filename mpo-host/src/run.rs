@@ -197,12 +197,17 @@ pub fn run<
         Some(opts) => {
             let mut link = Link::start(&req.task, &req.net, OBS, ACT, opts)?;
             eprintln!(
-                "acting through controller process {} (run id {}, {} wait, deadline {} us)",
+                "acting through controller process {} (run id {}, {} wait{}, deadline {} us)",
                 link.controller_pid()
                     .map(|p| format!("pid {p}"))
                     .unwrap_or_else(|| "attached".into()),
                 link.run_id(),
                 opts.wait.name(),
+                if opts.spin.is_zero() {
+                    String::new()
+                } else {
+                    format!(" after a {} us spin", opts.spin.as_micros())
+                },
                 opts.deadline.as_micros()
             );
             link.push(actor)?;

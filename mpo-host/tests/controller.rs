@@ -197,6 +197,7 @@ fn lockstep_run_through_the_controller_equals_mpo_eval() {
         &["--controller", "ipc"][..],
         &[],
         &["--controller", "ipc", "--wait", "busy-poll"],
+        &["--controller", "ipc", "--spin-us", "50"],
     ] {
         let mut args = vec![
             "run",
@@ -222,6 +223,12 @@ fn lockstep_run_through_the_controller_equals_mpo_eval() {
             assert_eq!(s["link"]["replies"], 3000);
             assert_eq!(s["link"]["leftover_files"], 0);
             no_files_left(s["link"]["run_id"].as_str().unwrap());
+            let spin = if extra.contains(&"--spin-us") {
+                50.0
+            } else {
+                0.0
+            };
+            assert_eq!(s["link"]["spin_us"], spin);
         }
     }
 }
@@ -433,6 +440,24 @@ fn link_flags_need_the_ipc_controller() {
         (
             &["run", "--checkpoint", d, "--deadline-us", "100"],
             "--deadline-us needs --controller ipc",
+        ),
+        (
+            &["run", "--checkpoint", d, "--spin-us", "50"],
+            "--spin-us needs --controller ipc",
+        ),
+        (
+            &[
+                "run",
+                "--checkpoint",
+                d,
+                "--controller",
+                "ipc",
+                "--wait",
+                "busy-poll",
+                "--spin-us",
+                "50",
+            ],
+            "--spin-us applies to --wait event",
         ),
         (
             &[

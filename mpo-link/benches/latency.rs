@@ -1,5 +1,6 @@
 //! Round-trip latency observation -> action, including inference at hopper size (15/4,
-//! 256-256), for iceoryx2 event mode, iceoryx2 busy-poll and a Unix-domain-socket baseline with
+//! 256-256), for iceoryx2 event mode (without and with the plant spinning 60 us before it
+//! sleeps), iceoryx2 busy-poll and a Unix-domain-socket baseline with
 //! the same payload, in one run; then a paced 1 kHz run in event mode counting deadline misses
 //! and wake-up jitter. Prints Markdown.
 //!
@@ -24,6 +25,8 @@ use mpo_link::{Plant, PlantConfig, RunId, WaitMode};
 type Policy = Actor<15, 4, 10, 256, 256>;
 const PROFILE: &str = "hopper-256";
 const SEED: u64 = 0;
+/// The plant's spin before sleeping in the event-mode row that has one (`PlantConfig::spin`).
+const SPIN: Duration = Duration::from_micros(60);
 
 fn policy() -> Box<Policy> {
     let mut p: Box<Policy> = bytemuck::zeroed_box();
@@ -102,7 +105,7 @@ fn pct(sorted: &[u64], p: f64) -> f64 {
     sorted[i] as f64 / 1000.0
 }
 
-fn iceoryx(wait: WaitMode, n: usize, obs: &[[f32; 15]]) -> Row {
+fn iceoryx(wait: WaitMode, spin: Duration, n: usize, obs: &[[f32; 15]]) -> Row {
     let run = RunId::new();
     let ctl = Command::new(env!("CARGO_BIN_EXE_mpo-controller"))
         .args([
@@ -125,6 +128,7 @@ fn iceoryx(wait: WaitMode, n: usize, obs: &[[f32; 15]]) -> Row {
             act_len: 4,
             wait,
             deadline: Duration::from_millis(100),
+            spin,
         },
     )
     .unwrap();
@@ -144,7 +148,15 @@ fn iceoryx(wait: WaitMode, n: usize, obs: &[[f32; 15]]) -> Row {
         }
     }
     Row {
-        name: format!("iceoryx2 {}", wait.name()),
+        name: if spin.is_zero() {
+            format!("iceoryx2 {}", wait.name())
+        } else {
+            format!(
+                "iceoryx2 {}, plant spins {} us first",
+                wait.name(),
+                spin.as_micros()
+            )
+        },
         lat,
         server,
         misses,
@@ -217,6 +229,7 @@ fn paced(seconds: u64, obs: &[[f32; 15]], rt: Option<i32>) {
             act_len: 4,
             wait: WaitMode::Event,
             deadline: Duration::from_nanos(period),
+            spin: Duration::ZERO,
         },
     )
     .unwrap();
@@ -302,8 +315,9 @@ fn main() {
     );
     println!("|---|---:|---:|---:|---:|---:|---:|");
     for row in [
-        iceoryx(WaitMode::Event, n, &obs),
-        iceoryx(WaitMode::BusyPoll, n, &obs),
+        iceoryx(WaitMode::Event, Duration::ZERO, n, &obs),
+        iceoryx(WaitMode::Event, SPIN, n, &obs),
+        iceoryx(WaitMode::BusyPoll, Duration::ZERO, n, &obs),
         uds(n, &obs),
     ] {
         let (mut l, mut s) = (row.lat, row.server);

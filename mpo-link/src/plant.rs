@@ -82,6 +82,12 @@ pub struct PlantConfig {
     pub wait: WaitMode,
     /// Deadline per request for [`Plant::act`] and [`Plant::act_sampled`].
     pub deadline: Duration,
+    /// In event mode, how long after sending to spin on the reply before sleeping
+    /// (`Duration::ZERO`: sleep at once). A reply that comes within it spares the plant its own
+    /// wake-up, which on a VM whose idle vCPUs halt is a large part of the round trip (event
+    /// p50 31.0 / 31.7 us without, 21.5 / 17.5 us with 60 us here); the price is at most this
+    /// much CPU time per request. Busy-poll spins anyway.
+    pub spin: Duration,
 }
 
 /// The plant's endpoint.
@@ -235,6 +241,7 @@ impl Plant {
             // Nobody listening (controller dead) is not an error here: the deadline reports it.
             let _ = self.ports().notify.notify();
         }
+        let spin_until = self.req.t_send_ns + self.cfg.spin.as_nanos() as u64;
         loop {
             while let Ok(Some(sample)) = self.ports().act.receive() {
                 let m: &ActMsg = &sample;
@@ -264,6 +271,7 @@ impl Plant {
                 return self.miss(Miss::Timeout);
             }
             match self.cfg.wait {
+                WaitMode::Event if monotonic_ns() < spin_until => core::hint::spin_loop(),
                 WaitMode::Event => wait_for_event(&self.ports().listen, left),
                 WaitMode::BusyPoll => core::hint::spin_loop(),
             }

@@ -174,6 +174,7 @@ fn lockstep_training_through_the_controller_equals_in_process_training() {
             act_len: 1,
             wait: WaitMode::Event,
             deadline: Duration::from_secs(2),
+            spin: Duration::ZERO,
         },
     )
     .unwrap();

@@ -65,6 +65,7 @@ fn requests_and_answers_allocate_nothing_on_either_side() {
             act_len: ACT,
             wait: WaitMode::Event,
             deadline: Duration::from_secs(2),
+            spin: Duration::ZERO,
         },
     )
     .expect("plant");

@@ -17,6 +17,7 @@ fn malformed_replies_are_rejected_and_counted() {
             act_len: 2,
             wait: WaitMode::Event,
             deadline: Duration::from_millis(300),
+            spin: Duration::ZERO,
         },
     )
     .unwrap();

@@ -84,6 +84,7 @@ fn plant(run: &RunId, obs: usize, act: usize, wait: WaitMode) -> Plant {
             wait,
             // Generous: the test binaries are debug builds on a shared machine.
             deadline: Duration::from_millis(500),
+            spin: Duration::ZERO,
         },
     )
     .unwrap()
@@ -178,6 +179,7 @@ fn killed_controller_gives_safe_actions_then_a_new_one_takes_over() {
             act_len: 4,
             wait: WaitMode::Event,
             deadline: Duration::from_millis(20),
+            spin: Duration::ZERO,
         },
     )
     .unwrap();
