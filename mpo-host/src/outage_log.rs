@@ -54,14 +54,12 @@ impl OutageLog {
         }
         self.streak = 0;
         self.start = None;
+        self.logged = false;
     }
 
     /// Request `seq` was missed at `now`; `why` says how (only called if the line is logged).
     pub fn missed(&mut self, seq: u64, now: Instant, why: impl FnOnce() -> String) {
         let (first, since) = *self.start.get_or_insert((seq, now));
-        if self.streak == 0 {
-            self.logged = false;
-        }
         self.streak += 1;
         let long = now - since >= LONG_OUTAGE;
         if self.logged || !(long || self.quiet_until.is_none_or(|t| now >= t)) {

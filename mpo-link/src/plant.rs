@@ -85,7 +85,8 @@ pub struct PlantConfig {
     /// In event mode, how long after sending to spin on the reply before sleeping
     /// (`Duration::ZERO`: sleep at once). A reply that comes within it spares the plant its own
     /// wake-up, which on a VM whose idle vCPUs halt is a large part of the round trip (event
-    /// p50 31.0 / 31.7 us without, 21.5 / 17.5 us with 60 us here); the price is at most this
+    /// p50 33.4 us without, 21.1 us with 60 us here: `cargo bench -p mpo-link --bench latency`,
+    /// docs/controller.md); the price is at most this
     /// much CPU time per request. Busy-poll spins anyway.
     pub spin: Duration,
 }
