@@ -1,6 +1,6 @@
 //! Kernel benchmarks: single-state actor forward, and batch forward + backward of actor and
 //! critic, at the hopper size and at a microcontroller profile, beside this core's measured
-//! peak for unfused f32 multiply + add.
+//! peak for 8-wide fused multiply-add (the kernels' instruction).
 //!
 //! Run: `cargo bench --bench kernels` (release profile, the workspace's x86-64-v3 target).
 //! Prints a Markdown table; figures are medians of 9 timed repetitions.
@@ -10,14 +10,15 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use mpo_core::actor::{Actor, ActorTape};
-use mpo_core::critic::{Critic, CriticTape};
+use mpo_core::actor::{Actor, ActorTape, ActorTransposed};
+use mpo_core::critic::{Critic, CriticTape, CriticTransposed};
 use mpo_core::rng::Rng;
 
 const B: usize = 256;
 
-/// One Zen 4 core: two 256-bit multiplies and two 256-bit adds per cycle (32 f32 FLOP/cycle)
-/// at about 3.65 GHz.
+/// One Zen 4 core: two 256-bit fused multiply-adds per cycle (32 f32 FLOP/cycle) at about
+/// 3.65 GHz (the clock measured on this kind of machine in November; some instances report
+/// and run at lower clocks, which the measured peak shows).
 const NOMINAL_PEAK: f64 = 117.0;
 
 /// Median seconds per call of `f`, over 9 repetitions of `iters` calls.
@@ -43,11 +44,14 @@ fn repetitions<F: FnMut()>(iters: usize, mut f: F) -> Vec<f64> {
     v
 }
 
-/// Achievable f32 throughput of this core for separate multiply and add (Rust never fuses
-/// them): 16 independent 8-wide chains of `x = x * m + c`; the best of 9 repetitions, since a
-/// peak is a best case (a busy sibling hardware thread or a preemption only lowers it).
+/// Achievable f32 throughput of this core for fused multiply-add: 12 independent 8-wide
+/// chains of `x = fma(x, m, c)` (enough to cover the FMA latency on two pipes); the best of 9
+/// repetitions, since a peak is a best case (a busy sibling hardware thread or a preemption
+/// only lowers it).
 fn measure_peak() -> f64 {
-    const CH: usize = 16;
+    use mpo_core::linear::mul_add;
+    // 12 chains: with the two constants, 14 of the 16 AVX2 registers (16 would spill).
+    const CH: usize = 12;
     const L: usize = 8;
     let mut acc = [[1.0f32; L]; CH];
     let (m, c) = (black_box(0.999_999f32), black_box(1e-7f32));
@@ -57,7 +61,7 @@ fn measure_peak() -> f64 {
             for _ in 0..100 {
                 for a in acc.iter_mut() {
                     for x in a.iter_mut() {
-                        *x = *x * m + c;
+                        *x = mul_add(*x, m, c);
                     }
                 }
             }
@@ -90,6 +94,7 @@ fn actor_rows<
     actor.init(&mut rng, 0.5, 1e-4);
     let mut grad: Box<Actor<OBS, ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
     let mut tape: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let mut t: Box<ActorTransposed<ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
     let mut obs: Box<[[f32; OBS]; B]> = bytemuck::zeroed_box();
     rng.fill_normal(obs.as_flattened_mut());
     let mut mean: Box<[[f32; ACT]; B]> = bytemuck::zeroed_box();
@@ -120,7 +125,7 @@ fn actor_rows<
 
     let secs = time(20, || {
         actor.forward(&obs, &mut tape, &mut mean, &mut chol);
-        actor.backward(&obs, &mut tape, &dm, &dc, &mut grad);
+        actor.backward(&obs, &mut tape, &dm, &dc, &mut t, &mut grad);
         black_box(&grad.l1.w[0][0]);
     });
     // forward 2 macs, weight gradients 2 macs, input gradients 2 macs except the first layer.
@@ -142,6 +147,7 @@ fn critic_rows<const OBS: usize, const ACT: usize, const H1: usize, const H2: us
     critic.init(&mut rng);
     let mut grad: Box<Critic<OBS, ACT, H1, H2>> = bytemuck::zeroed_box();
     let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let mut t: Box<CriticTransposed<H1, H2>> = bytemuck::zeroed_box();
     let mut obs: Box<[[f32; OBS]; B]> = bytemuck::zeroed_box();
     let mut act: Box<[[f32; ACT]; B]> = bytemuck::zeroed_box();
     rng.fill_normal(obs.as_flattened_mut());
@@ -152,7 +158,7 @@ fn critic_rows<const OBS: usize, const ACT: usize, const H1: usize, const H2: us
     let macs = ((OBS + ACT) * H1 + H1 * H2 + H2) as f64;
     let secs = time(20, || {
         critic.forward(&obs, &act, &mut tape, &mut q);
-        critic.backward(&obs, &act, &mut tape, &dq, &mut grad);
+        critic.backward(&obs, &act, &mut tape, &dq, &mut t, &mut grad);
         black_box(&grad.l2.w[0][0]);
     });
     let flops = B as f64 * 2.0 * (2.0 * macs + (H1 * H2 + H2) as f64);
@@ -160,6 +166,36 @@ fn critic_rows<const OBS: usize, const ACT: usize, const H1: usize, const H2: us
         name: format!("{label}: critic forward+backward, batch {B}"),
         secs,
         flops,
+    });
+}
+
+/// The learner's hottest path: the target critic on one chunk of 64 rows given the state
+/// part (action block, ReLU, second layer, ReLU, output), as for every E-step and
+/// next-action sample.
+fn critic_eval_rows<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>(
+    label: &str,
+    rows: &mut Vec<Row>,
+) {
+    const R: usize = 64;
+    let mut rng = Rng::seed_from_u64(4);
+    let mut critic: Box<Critic<OBS, ACT, H1, H2>> = bytemuck::zeroed_box();
+    critic.init(&mut rng);
+    let mut tape: Box<CriticTape<R, H1, H2>> = bytemuck::zeroed_box();
+    let mut obs: Box<[[f32; OBS]; R]> = bytemuck::zeroed_box();
+    let mut act: Box<[[f32; ACT]; R]> = bytemuck::zeroed_box();
+    let mut pre1: Box<[[f32; H1]; R]> = bytemuck::zeroed_box();
+    rng.fill_normal(obs.as_flattened_mut());
+    rng.fill_normal(act.as_flattened_mut());
+    critic.state_part(&*obs, &mut *pre1);
+    let mut q = [[0f32; 1]; R];
+    let secs = time(200, || {
+        critic.forward_from_state_part(&pre1, &act, &mut tape, &mut q);
+        black_box(&q);
+    });
+    rows.push(Row {
+        name: format!("{label}: critic evaluation from the state part, {R} rows"),
+        secs,
+        flops: R as f64 * 2.0 * (ACT * H1 + H1 * H2 + H2) as f64,
     });
 }
 
@@ -196,7 +232,8 @@ fn layer_rows(rows: &mut Vec<Row>) {
     });
     let mut wt: Box<[[f32; N]; N]> = bytemuck::zeroed_box();
     let secs = time(50, || {
-        l.backward_wide(&*x, &*y, &mut g, &mut *dx, &mut wt);
+        l.backward(&*x, &*y, &mut g);
+        l.input_grad(&*y, &mut *dx, &mut wt);
         black_box(&dx[0][0]);
     });
     rows.push(Row {
@@ -204,6 +241,33 @@ fn layer_rows(rows: &mut Vec<Row>) {
         secs,
         flops: 2.0 * flops,
     });
+}
+
+fn cpuinfo(key: &str) -> Option<String> {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()?
+        .lines()
+        .find(|l| l.starts_with(key))
+        .and_then(|l| l.split(':').nth(1))
+        .map(|v| v.trim().to_string())
+}
+
+/// The clock /proc/cpuinfo reports (a VM's nominal clock).
+fn cpu_mhz() -> f64 {
+    cpuinfo("cpu MHz")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(f64::NAN)
+}
+
+/// Model name, family and model (the name alone says only "AMD EPYC" on these VMs; family
+/// 25 model 1 is Zen 3, model 17 Zen 4).
+fn cpu_name() -> String {
+    format!(
+        "{} (family {}, model {})",
+        cpuinfo("model name").unwrap_or_default(),
+        cpuinfo("cpu family").unwrap_or_default(),
+        cpuinfo("model\t").unwrap_or_default()
+    )
 }
 
 /// The 1-minute load average (other work on the machine skews every figure).
@@ -232,17 +296,27 @@ fn main() {
         actor_rows::<15, 4, 10, 64, 64>("mcu 15/4, 64-64", &mut rows, single, batch);
     }
     if on("critic") {
+        critic_eval_rows::<24, 6, 256, 256>("walker 24/6, 256-256", &mut rows);
         critic_rows::<15, 4, 256, 256>("hopper 15/4, 256-256", &mut rows);
         critic_rows::<15, 4, 64, 64>("mcu 15/4, 64-64", &mut rows);
     }
 
-    println!("measured single-core peak (unfused f32 mul+add, 8-wide): {peak:.1} GFLOP/s");
+    println!("measured single-core peak (8-wide fused multiply-add): {peak:.1} GFLOP/s");
     println!(
-        "nominal single-core peak (2 x 256-bit mul + 2 x 256-bit add per cycle at ~3.65 GHz): {NOMINAL_PEAK} GFLOP/s"
+        "nominal single-core peak (2 x 256-bit FMA per cycle at ~3.65 GHz): {NOMINAL_PEAK} GFLOP/s"
+    );
+    let mhz = cpu_mhz();
+    println!(
+        "this instance: {} at {mhz:.0} MHz as reported by /proc/cpuinfo, so 32 FLOP/cycle x clock = {:.1} GFLOP/s",
+        cpu_name(),
+        32.0 * mhz / 1e3
     );
     println!("load average (1 min) at the end: {}\n", load_average());
-    println!("| kernel | time (median) | GFLOP/s | % of nominal peak | % of measured peak |");
-    println!("|---|---:|---:|---:|---:|");
+    let clock_peak = 32.0 * mhz / 1e3;
+    println!(
+        "| kernel | time (median) | GFLOP/s | % of 117 GFLOP/s | % of 32 FLOP/cycle at the reported clock | % of measured peak |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|");
     for r in &rows {
         let gf = r.flops / r.secs / 1e9;
         let t = if r.secs < 1e-3 {
@@ -251,11 +325,12 @@ fn main() {
             format!("{:.3} ms", r.secs * 1e3)
         };
         println!(
-            "| {} | {} | {:.1} | {:.0}% | {:.0}% |",
+            "| {} | {} | {:.1} | {:.0}% | {:.0}% | {:.0}% |",
             r.name,
             t,
             gf,
             100.0 * gf / NOMINAL_PEAK,
+            100.0 * gf / clock_peak,
             100.0 * gf / peak
         );
     }

@@ -2,6 +2,10 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Allocations on every thread (for code that runs on worker threads).
+static ALL_THREADS: AtomicU64 = AtomicU64::new(0);
 
 thread_local! {
     // const-initialised and without Drop, so touching it never allocates or registers a
@@ -10,7 +14,7 @@ thread_local! {
 }
 
 /// A global allocator that counts heap allocations per thread (parallel tests do not disturb
-/// each other's counts). Install it in a test binary with
+/// each other's counts) and over all threads. Install it in a test binary with
 /// `#[global_allocator] static A: CountingAlloc = CountingAlloc;`.
 pub struct CountingAlloc;
 
@@ -18,16 +22,19 @@ pub struct CountingAlloc;
 unsafe impl GlobalAlloc for CountingAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        ALL_THREADS.fetch_add(1, Ordering::Relaxed);
         // SAFETY: same contract as the caller's.
         unsafe { System.alloc(layout) }
     }
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
         ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        ALL_THREADS.fetch_add(1, Ordering::Relaxed);
         // SAFETY: same contract as the caller's.
         unsafe { System.alloc_zeroed(layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        ALL_THREADS.fetch_add(1, Ordering::Relaxed);
         // SAFETY: same contract as the caller's.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -43,6 +50,15 @@ pub fn count_allocations<R>(f: impl FnOnce() -> R) -> (R, u64) {
     let before = ALLOCATIONS.with(Cell::get);
     let r = f();
     (r, ALLOCATIONS.with(Cell::get) - before)
+}
+
+/// Runs `f` and returns its result with the number of heap allocations made on every thread
+/// meanwhile (for work spread over a thread pool; meaningful only in a test binary where
+/// nothing else runs at the same time).
+pub fn count_allocations_all_threads<R>(f: impl FnOnce() -> R) -> (R, u64) {
+    let before = ALL_THREADS.load(Ordering::SeqCst);
+    let r = f();
+    (r, ALL_THREADS.load(Ordering::SeqCst) - before)
 }
 
 /// The workspace root (for tests that build or run other parts of the repository).

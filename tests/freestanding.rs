@@ -3,7 +3,9 @@
 //! Builds `freestanding/core-check` (a `#![no_std] #![no_main]` static binary with its own
 //! `_start`, no libc, no allocator) in release mode for the baseline x86-64 CPU, runs it, and
 //! compares its fingerprints with the same computation done here (std, dev profile, the
-//! workspace's x86-64-v3 target): same seed, same bits. Then proves the harness has teeth:
+//! workspace's x86-64-v3 target, where `mul_add` is the FMA instruction; the freestanding
+//! build's baseline CPU computes it with `libm::fmaf`): same seed, same bits, for the kernels
+//! and for whole learner updates. Then proves the harness has teeth:
 //! the same binary with a feature that uses `alloc`, or one that links `std`, fails to build.
 
 #![allow(clippy::needless_range_loop)]
@@ -45,8 +47,10 @@ fn freestanding_binary_links_runs_and_matches_host_bits() {
     let stdout = String::from_utf8(run.stdout).unwrap();
     let mut lines = stdout.lines();
     let self_line = lines.next().expect("no selfcheck line");
+    let learner_line = lines.next().expect("no learner line");
     let fwd_line = lines.next().expect("no forward line");
     assert!(self_line.starts_with("selfcheck 42 200 "), "{self_line}");
+    assert!(learner_line.starts_with("learner 42 6 "), "{learner_line}");
     assert!(fwd_line.starts_with("forward 42 "), "{fwd_line}");
 
     let mut check: Box<SelfCheck> = bytemuck::zeroed_box();
@@ -55,6 +59,13 @@ fn freestanding_binary_links_runs_and_matches_host_bits() {
         parse_hex(self_line),
         host,
         "training fingerprint differs between builds"
+    );
+    // Whole learner updates: E-step (temperature solve, weights), M-step, TD and Retrace
+    // targets, action penalization, shared samples, Polyak targets.
+    assert_eq!(
+        parse_hex(learner_line),
+        check.learner(42, 6),
+        "learner fingerprint differs between builds"
     );
     assert_eq!(
         parse_hex(fwd_line),
@@ -87,4 +98,6 @@ fn selfcheck_is_reproducible_within_a_build_and_sensitive_to_the_seed() {
     let mut b: Box<SelfCheck> = bytemuck::zeroed_box();
     assert_eq!(a.run(7, 50), b.run(7, 50));
     assert_ne!(a.run(7, 50), b.run(8, 50));
+    assert_eq!(a.learner(7, 3), b.learner(7, 3));
+    assert_ne!(a.learner(7, 3), b.learner(8, 3));
 }

@@ -5,9 +5,9 @@
 
 #![allow(clippy::needless_range_loop)]
 
-use mpo_core::actor::{Actor, ActorTape};
+use mpo_core::actor::{Actor, ActorTape, ActorTransposed};
 use mpo_core::adam::{AdamConfig, AdamState, adam_step};
-use mpo_core::critic::{Critic, CriticTape};
+use mpo_core::critic::{Critic, CriticTape, CriticTransposed};
 use mpo_core::gaussian::{Gaussian, GaussianGrad, head_backward};
 use mpo_core::params::clip_global_norm;
 use mpo_core::rng::Rng;
@@ -37,6 +37,8 @@ struct Bench {
     critic_v: Box<C>,
     atape: Box<ActorTape<B, H, H>>,
     ctape: Box<CriticTape<B, H, H>>,
+    at: Box<ActorTransposed<ACT, TRI, H, H>>,
+    ct: Box<CriticTransposed<H, H>>,
     obs: Box<[[f32; OBS]; B]>,
     act: Box<[[f32; ACT]; B]>,
     mean: Box<[[f32; ACT]; B]>,
@@ -58,6 +60,8 @@ fn acting_and_training_steps_do_not_allocate() {
         critic_v: bytemuck::zeroed_box(),
         atape: bytemuck::zeroed_box(),
         ctape: bytemuck::zeroed_box(),
+        at: bytemuck::zeroed_box(),
+        ct: bytemuck::zeroed_box(),
         obs: bytemuck::zeroed_box(),
         act: bytemuck::zeroed_box(),
         mean: bytemuck::zeroed_box(),
@@ -99,6 +103,7 @@ fn acting_and_training_steps_do_not_allocate() {
             &mut s.atape,
             &s.d_mean,
             &s.d_chol,
+            &mut s.at,
             &mut s.actor_grad,
         );
         clip_global_norm(&mut *s.actor_grad, 40.0);
@@ -117,8 +122,14 @@ fn acting_and_training_steps_do_not_allocate() {
         for i in 0..B {
             dq[i][0] = q[i][0] / B as f32;
         }
-        s.critic
-            .backward(&s.obs, &s.act, &mut s.ctape, &dq, &mut s.critic_grad);
+        s.critic.backward(
+            &s.obs,
+            &s.act,
+            &mut s.ctape,
+            &dq,
+            &mut s.ct,
+            &mut s.critic_grad,
+        );
         adam_step(
             &cfg,
             &mut sc,
@@ -132,17 +143,12 @@ fn acting_and_training_steps_do_not_allocate() {
 
     // A full learner update (policy evaluation, E-step, M-step) at hopper size, after the
     // first update has run (nothing is allocated lazily either).
-    let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H, H, 64, 20, 20>> =
-        bytemuck::zeroed_box();
+    let mut learner: Box<Hopper> = bytemuck::zeroed_box();
     learner
         .init(mpo_core::config::MpoConfig::REPORT, 3)
         .unwrap();
     for round in 0..2 {
-        rng.fill_normal(learner.batch.obs.as_flattened_mut());
-        rng.fill_normal(learner.batch.action.as_flattened_mut());
-        rng.fill_normal(learner.batch.next_obs.as_flattened_mut());
-        rng.fill_normal(&mut learner.batch.reward);
-        learner.batch.bootstrap = [0.99; 64];
+        fill(&mut learner, &mut rng);
         let (r, n) = count_allocations(|| learner.update());
         r.unwrap();
         assert_eq!(n, 0, "learner update {round} allocated {n} times");
@@ -151,4 +157,18 @@ fn acting_and_training_steps_do_not_allocate() {
     // The counter works: a Vec does allocate.
     let (_, n) = count_allocations(|| std::hint::black_box(vec![1u8; 16]));
     assert_eq!(n, 1);
+}
+
+/// The hopper-size learner of these tests: 2 chunks of 32 rows, sequences up to 3.
+type Hopper = mpo_core::learner::Learner<OBS, ACT, TRI, H, H, H, H, 32, 2, 3, 20, 20>;
+
+fn fill(l: &mut Hopper, rng: &mut Rng) {
+    for b in l.batch.iter_mut() {
+        rng.fill_normal(b.obs.as_flattened_mut().as_flattened_mut());
+        rng.fill_normal(b.action.as_flattened_mut().as_flattened_mut());
+        rng.fill_normal(b.next_obs.as_flattened_mut().as_flattened_mut());
+        rng.fill_normal(b.reward.as_flattened_mut());
+        b.bootstrap = [[0.99; 32]; 3];
+        b.behaviour_log_prob = [[-2.0; 32]; 3];
+    }
 }

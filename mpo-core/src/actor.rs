@@ -2,11 +2,19 @@
 //!
 //! Two heads instead of one output layer of width `A + A(A+1)/2` keep every size a plain const
 //! generic (stable Rust has no size expressions in types).
+//!
+//! Training splits the backward pass in two, so a batch held in chunks can be spread over
+//! threads: [`Actor::backprop`] carries the head gradients down to the hidden layers of one
+//! chunk (rows are independent), then [`Actor::grad_parts`] and [`ActorGradPart::compute`]
+//! form the weight gradients from every chunk's activations, one block of parameter rows at a
+//! time (blocks are independent). [`Actor::backward`] does both for one contiguous batch.
 
 use bytemuck::Zeroable;
 
 use crate::gaussian::{Gaussian, softplus_inverse, tri_index};
-use crate::linear::{Linear, relu};
+use crate::linear::Linear;
+#[cfg(feature = "train")]
+use crate::linear::{accumulate, bias_grad_chunks, relu_backward, transpose, weight_grad_chunks};
 use crate::params::Params;
 use crate::rng::Rng;
 
@@ -60,14 +68,12 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
 
     /// Trunk for a batch: `h1 = relu(l1 x)`, `h2 = relu(l2 h1)`.
     pub fn trunk(&self, obs: &[[f32; OBS]], h1: &mut [[f32; H1]], h2: &mut [[f32; H2]]) {
-        self.l1.forward(obs, h1);
-        relu(h1);
-        self.l2.forward(h1, h2);
-        relu(h2);
+        self.l1.forward_relu(obs, h1);
+        self.l2.forward_relu(h1, h2);
     }
 
     #[cfg(feature = "train")]
-    /// Raw head outputs for a batch, keeping the activations in `tape` for [`Self::backward`].
+    /// Raw head outputs for a batch, keeping the activations in `tape` for the backward pass.
     pub fn forward<const B: usize>(
         &self,
         obs: &[[f32; OBS]; B],
@@ -81,39 +87,94 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 
     #[cfg(feature = "train")]
+    /// Fills `t` with the transposed weights [`Self::backprop`] multiplies by.
+    pub fn transpose_into(&self, t: &mut ActorTransposed<ACT, TRI, H1, H2>) {
+        transpose(&self.mean.w, &mut t.mean);
+        transpose(&self.chol.w, &mut t.chol);
+        transpose(&self.l2.w, &mut t.l2);
+    }
+
+    #[cfg(feature = "train")]
+    /// Carries the head gradients `d_mean`, `d_chol` of one chunk down to the hidden layers:
+    /// fills `tape.d_h2` and `tape.d_h1` (gradients at the post-ReLU activations' inputs).
+    /// `tape` holds the chunk's forward activations, `t` this network's transposed weights.
+    pub fn backprop<const B: usize>(
+        &self,
+        tape: &mut ActorTape<B, H1, H2>,
+        d_mean: &[[f32; ACT]; B],
+        d_chol: &[[f32; TRI]; B],
+        t: &ActorTransposed<ACT, TRI, H1, H2>,
+    ) {
+        for row in tape.d_h2.iter_mut() {
+            row.fill(0.0);
+        }
+        accumulate(d_mean, &t.mean, &mut tape.d_h2);
+        accumulate(d_chol, &t.chol, &mut tape.d_h2);
+        relu_backward(&tape.h2, &mut tape.d_h2);
+        for row in tape.d_h1.iter_mut() {
+            row.fill(0.0);
+        }
+        accumulate(&tape.d_h2, &t.l2, &mut tape.d_h1);
+        relu_backward(&tape.h1, &mut tape.d_h1);
+    }
+
+    #[cfg(feature = "train")]
     /// Gradients of `sum_n d_mean[n] . mean[n] + d_chol[n] . chol[n]` with respect to every
-    /// parameter, written into `grad`. `tape` must hold the activations of the forward pass
-    /// for the same `obs`.
+    /// parameter, written into `grad`, for one contiguous batch. `tape` must hold the
+    /// activations of the forward pass for the same `obs`; `t` is scratch.
     pub fn backward<const B: usize>(
         &self,
         obs: &[[f32; OBS]; B],
         tape: &mut ActorTape<B, H1, H2>,
         d_mean: &[[f32; ACT]; B],
         d_chol: &[[f32; TRI]; B],
+        t: &mut ActorTransposed<ACT, TRI, H1, H2>,
         grad: &mut Self,
     ) {
-        self.mean
-            .backward(&tape.h2, d_mean, &mut grad.mean, Some(&mut tape.d_h2));
-        self.chol
-            .backward(&tape.h2, d_chol, &mut grad.chol, Some(&mut tape.d_h2b));
-        for (a, b) in tape
-            .d_h2
-            .as_flattened_mut()
-            .iter_mut()
-            .zip(tape.d_h2b.as_flattened())
-        {
-            *a += *b;
+        self.transpose_into(t);
+        self.backprop(tape, d_mean, d_chol, t);
+        let inputs = ActorGradInputs {
+            obs: &[&obs[..]],
+            h1: &[&tape.h1[..]],
+            h2: &[&tape.h2[..]],
+            d_h1: &[&tape.d_h1[..]],
+            d_h2: &[&tape.d_h2[..]],
+            d_mean: &[&d_mean[..]],
+            d_chol: &[&d_chol[..]],
+        };
+        for part in grad.grad_parts(usize::MAX).iter_mut() {
+            part.compute(&inputs);
         }
-        crate::linear::relu_backward(&tape.h2, &mut tape.d_h2);
-        self.l2.backward_wide(
-            &tape.h1,
-            &tape.d_h2,
-            &mut grad.l2,
-            &mut tape.d_h1,
-            &mut tape.w2t,
-        );
-        crate::linear::relu_backward(&tape.h1, &mut tape.d_h1);
-        self.l1.backward(obs, &tape.d_h1, &mut grad.l1, None);
+    }
+
+    #[cfg(feature = "train")]
+    /// Splits `self` (a gradient) into independent blocks for [`ActorGradPart::compute`]:
+    /// the first layer, the second layer's weights in blocks of `rows` input rows, its bias,
+    /// and the heads. The blocks depend only on `rows`, never on who computes them.
+    pub fn grad_parts(
+        &mut self,
+        rows: usize,
+    ) -> heapless::Vec<ActorGradPart<'_, OBS, ACT, TRI, H1, H2>, MAX_PARTS> {
+        let mut parts = heapless::Vec::new();
+        let rows = rows.max(H1.div_ceil(MAX_PARTS - 3)).max(1);
+        let mut push = |p| {
+            if parts.push(p).is_err() {
+                unreachable!("block count is bounded above");
+            }
+        };
+        push(ActorGradPart::First(&mut self.l1));
+        let mut i0 = 0;
+        for block in self.l2.w.chunks_mut(rows) {
+            let n = block.len();
+            push(ActorGradPart::Second { w: block, i0 });
+            i0 += n;
+        }
+        push(ActorGradPart::SecondBias(&mut self.l2.b));
+        push(ActorGradPart::Heads {
+            mean: &mut self.mean,
+            chol: &mut self.chol,
+        });
+        parts
     }
 
     /// Raw head outputs for one state (no tape: the inference path).
@@ -147,6 +208,107 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 }
 
+/// Upper bound of the blocks [`Actor::grad_parts`] and the critic's equivalent return.
+pub const MAX_PARTS: usize = 24;
+
+#[cfg(feature = "train")]
+/// One independent block of an actor's weight gradient (see [`Actor::grad_parts`]).
+pub enum ActorGradPart<
+    'a,
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+> {
+    /// The first layer (weights and bias).
+    First(&'a mut Linear<OBS, H1>),
+    /// Second-layer weight rows `i0 ..`.
+    Second {
+        /// The rows.
+        w: &'a mut [[f32; H2]],
+        /// Index of the first row.
+        i0: usize,
+    },
+    /// The second layer's bias.
+    SecondBias(&'a mut [f32; H2]),
+    /// Both heads.
+    Heads {
+        /// Mean head.
+        mean: &'a mut Linear<H2, ACT>,
+        /// Cholesky head.
+        chol: &'a mut Linear<H2, TRI>,
+    },
+}
+
+#[cfg(feature = "train")]
+/// The activations and gradients of a batch held in chunks, as the weight gradients read
+/// them: entry `c` of every list is chunk `c`.
+pub struct ActorGradInputs<
+    'a,
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+> {
+    /// States.
+    pub obs: &'a [&'a [[f32; OBS]]],
+    /// First hidden activations.
+    pub h1: &'a [&'a [[f32; H1]]],
+    /// Second hidden activations.
+    pub h2: &'a [&'a [[f32; H2]]],
+    /// Gradients at the first hidden layer's pre-activations.
+    pub d_h1: &'a [&'a [[f32; H1]]],
+    /// Gradients at the second hidden layer's pre-activations.
+    pub d_h2: &'a [&'a [[f32; H2]]],
+    /// Gradients at the mean head's outputs.
+    pub d_mean: &'a [&'a [[f32; ACT]]],
+    /// Gradients at the Cholesky head's outputs.
+    pub d_chol: &'a [&'a [[f32; TRI]]],
+}
+
+#[cfg(feature = "train")]
+impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize>
+    ActorGradPart<'_, OBS, ACT, TRI, H1, H2>
+{
+    /// Computes this block of the gradient (overwriting it) and returns the sum of its
+    /// squares (the block's share of the global norm).
+    pub fn compute(&mut self, x: &ActorGradInputs<'_, OBS, ACT, TRI, H1, H2>) -> f64 {
+        match self {
+            Self::First(l) => {
+                weight_grad_chunks(x.obs, x.d_h1, 0, &mut l.w);
+                bias_grad_chunks(x.d_h1, &mut l.b);
+                sum_squares(l.w.as_flattened()) + sum_squares(&l.b)
+            }
+            Self::Second { w, i0 } => {
+                weight_grad_chunks(x.h1, x.d_h2, *i0, w);
+                sum_squares(w.as_flattened())
+            }
+            Self::SecondBias(b) => {
+                bias_grad_chunks(x.d_h2, b);
+                sum_squares(&b[..])
+            }
+            Self::Heads { mean, chol } => {
+                weight_grad_chunks(x.h2, x.d_mean, 0, &mut mean.w);
+                bias_grad_chunks(x.d_mean, &mut mean.b);
+                weight_grad_chunks(x.h2, x.d_chol, 0, &mut chol.w);
+                bias_grad_chunks(x.d_chol, &mut chol.b);
+                sum_squares(mean.w.as_flattened())
+                    + sum_squares(&mean.b)
+                    + sum_squares(chol.w.as_flattened())
+                    + sum_squares(&chol.b)
+            }
+        }
+    }
+}
+
+#[cfg(feature = "train")]
+/// `sum x^2` in f64, in order.
+pub(crate) fn sum_squares(x: &[f32]) -> f64 {
+    x.iter().map(|&v| v as f64 * v as f64).sum()
+}
+
 #[cfg(feature = "train")]
 /// Activations and backward scratch for a batch of `B` states.
 #[derive(Clone, Zeroable)]
@@ -158,10 +320,19 @@ pub struct ActorTape<const B: usize, const H1: usize, const H2: usize> {
     pub h2: [[f32; H2]; B],
     /// Gradient at the second hidden layer.
     pub d_h2: [[f32; H2]; B],
-    /// Gradient at the second hidden layer from the Cholesky head (summed into `d_h2`).
-    pub d_h2b: [[f32; H2]; B],
     /// Gradient at the first hidden layer.
     pub d_h1: [[f32; H1]; B],
-    /// Transposed second-layer weights (scratch of the input gradient).
-    pub w2t: [[f32; H1]; H2],
+}
+
+#[cfg(feature = "train")]
+/// The actor's weights transposed (output-major), as the backward pass multiplies by them.
+#[derive(Clone, Zeroable)]
+#[repr(C)]
+pub struct ActorTransposed<const ACT: usize, const TRI: usize, const H1: usize, const H2: usize> {
+    /// Mean head.
+    pub mean: [[f32; H2]; ACT],
+    /// Cholesky head.
+    pub chol: [[f32; H2]; TRI],
+    /// Second layer.
+    pub l2: [[f32; H1]; H2],
 }

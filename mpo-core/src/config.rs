@@ -52,6 +52,24 @@ pub struct MpoConfig {
     pub estep_tol: f64,
     /// E-step iteration limit (each costs `B M` exponentials).
     pub estep_max_iter: u32,
+    /// Transitions per replayed sequence: 1 = the batch holds single transitions (TD(0), or
+    /// n-step transitions folded by the caller: expected SARSA on the target policy); `L > 1`
+    /// = Retrace (paper eq. 11) over `L` consecutive transitions. At most the learner's `L`.
+    pub sequence_len: u32,
+    /// Acme's action penalization (MO-MPO): a second E-step over the same samples for the
+    /// objective `-|a - clip(a, -1, 1)|^2` with its own temperature and KL bound
+    /// `eps_penalty`, whose weights join the M-step's weighted likelihood. Keeps the policy
+    /// inside the actuators' range without touching the reward.
+    pub action_penalization: bool,
+    /// KL bound of the penalty objective's E-step (Acme: 1e-3).
+    pub eps_penalty: f32,
+    /// Acme's shared samples: the E- and M-steps run on the next states and reuse the `N`
+    /// target-policy samples and target-critic values of the TD target (`B N` target-critic
+    /// evaluations per update instead of `B (M + N)`). Needs `M = N` and `sequence_len = 1`.
+    pub shared_samples: bool,
+    /// Polyak averaging of the targets, `target = (1 - tau) target + tau online`, after every
+    /// update; 0 = copy every `target_period` updates instead.
+    pub target_tau: f32,
 }
 
 impl MpoConfig {
@@ -76,6 +94,11 @@ impl MpoConfig {
         alpha_cov_init: 1000.0,
         estep_tol: 1e-3,
         estep_max_iter: 50,
+        sequence_len: 1,
+        action_penalization: false,
+        eps_penalty: 1e-3,
+        shared_samples: false,
+        target_tau: 0.0,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -104,6 +127,25 @@ impl MpoConfig {
         pos("alpha_mean_init", self.alpha_mean_init as f64)?;
         pos("alpha_cov_init", self.alpha_cov_init as f64)?;
         pos("estep_tol", self.estep_tol)?;
+        pos("eps_penalty", self.eps_penalty as f64)?;
+        if !(self.target_tau >= 0.0 && self.target_tau <= 1.0) {
+            return Err(ConfigError {
+                field: "target_tau",
+                requirement: "in [0, 1]",
+            });
+        }
+        if self.sequence_len == 0 {
+            return Err(ConfigError {
+                field: "sequence_len",
+                requirement: "at least 1",
+            });
+        }
+        if self.shared_samples && self.sequence_len != 1 {
+            return Err(ConfigError {
+                field: "shared_samples",
+                requirement: "false with Retrace (sequence_len > 1)",
+            });
+        }
         if !(self.gamma >= 0.0 && self.gamma <= 1.0) {
             return Err(ConfigError {
                 field: "gamma",

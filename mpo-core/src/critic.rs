@@ -7,7 +7,11 @@
 
 use bytemuck::Zeroable;
 
-use crate::linear::{Linear, accumulate, relu, relu_backward, weight_grad};
+use crate::actor::{MAX_PARTS, sum_squares};
+use crate::linear::{
+    Linear, Start, accumulate, bias_grad_chunks, kernel, relu_backward, transpose,
+    weight_grad_chunks,
+};
 use crate::params::Params;
 use crate::rng::Rng;
 
@@ -28,6 +32,9 @@ impl<const I: usize, const O: usize> Params for Weights<I, O> {
     fn tensor_mut(&mut self, k: usize) -> &mut [f32] {
         assert_eq!(k, 0, "Weights has 1 tensor");
         self.w.as_flattened_mut()
+    }
+    fn visit_mut<'a>(&'a mut self, f: &mut dyn FnMut(&'a mut [f32])) {
+        f(self.w.as_flattened_mut());
     }
 }
 
@@ -86,21 +93,17 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         tape: &mut CriticTape<B, H1, H2>,
         q: &mut [[f32; 1]; B],
     ) {
-        tape.h1 = *pre1_s;
-        self.finish_forward(act, tape, q);
+        kernel::<ACT, H1, true>(act, &self.l1a.w, Start::Rows(pre1_s), &mut tape.h1);
+        self.finish_forward(tape, q);
     }
 
-    /// The rest of the forward pass once `tape.h1` holds the observation part.
+    /// The rest of the forward pass once `tape.h1` holds the first hidden layer.
     fn finish_forward<const B: usize>(
         &self,
-        act: &[[f32; ACT]; B],
         tape: &mut CriticTape<B, H1, H2>,
         q: &mut [[f32; 1]; B],
     ) {
-        accumulate(act, &self.l1a.w, &mut tape.h1);
-        relu(&mut tape.h1);
-        self.l2.forward(&tape.h1, &mut tape.h2);
-        relu(&mut tape.h2);
+        self.l2.forward_relu(&tape.h1, &mut tape.h2);
         self.out.forward(&tape.h2, q);
     }
 
@@ -113,32 +116,90 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         q: &mut [[f32; 1]; B],
     ) {
         self.state_part(obs, &mut tape.h1);
-        self.finish_forward(act, tape, q);
+        kernel::<ACT, H1, true>(act, &self.l1a.w, Start::Y, &mut tape.h1);
+        self.finish_forward(tape, q);
+    }
+
+    /// Fills `t` with the transposed weights [`Self::backprop`] multiplies by.
+    pub fn transpose_into(&self, t: &mut CriticTransposed<H1, H2>) {
+        transpose(&self.out.w, &mut t.out);
+        transpose(&self.l2.w, &mut t.l2);
+    }
+
+    /// Carries `dq` of one chunk down to the hidden layers: fills `tape.d_h2` and `tape.d_h1`.
+    /// `tape` holds the chunk's forward activations, `t` this network's transposed weights.
+    pub fn backprop<const B: usize>(
+        &self,
+        tape: &mut CriticTape<B, H1, H2>,
+        dq: &[[f32; 1]; B],
+        t: &CriticTransposed<H1, H2>,
+    ) {
+        for row in tape.d_h2.iter_mut() {
+            row.fill(0.0);
+        }
+        accumulate(dq, &t.out, &mut tape.d_h2);
+        relu_backward(&tape.h2, &mut tape.d_h2);
+        for row in tape.d_h1.iter_mut() {
+            row.fill(0.0);
+        }
+        accumulate(&tape.d_h2, &t.l2, &mut tape.d_h1);
+        relu_backward(&tape.h1, &mut tape.d_h1);
     }
 
     /// Gradients of `sum_n dq[n] Q(s_n, a_n)` with respect to every parameter, written into
-    /// `grad`; `tape` must hold the activations of the forward pass on the same batch.
+    /// `grad`, for one contiguous batch; `tape` must hold the activations of the forward pass
+    /// on the same batch; `t` is scratch.
     pub fn backward<const B: usize>(
         &self,
         obs: &[[f32; OBS]; B],
         act: &[[f32; ACT]; B],
         tape: &mut CriticTape<B, H1, H2>,
         dq: &[[f32; 1]; B],
+        t: &mut CriticTransposed<H1, H2>,
         grad: &mut Self,
     ) {
-        self.out
-            .backward(&tape.h2, dq, &mut grad.out, Some(&mut tape.d_h2));
-        relu_backward(&tape.h2, &mut tape.d_h2);
-        self.l2.backward_wide(
-            &tape.h1,
-            &tape.d_h2,
-            &mut grad.l2,
-            &mut tape.d_h1,
-            &mut tape.w2t,
-        );
-        relu_backward(&tape.h1, &mut tape.d_h1);
-        self.l1s.backward(obs, &tape.d_h1, &mut grad.l1s, None);
-        weight_grad(act, &tape.d_h1, &mut grad.l1a.w);
+        self.transpose_into(t);
+        self.backprop(tape, dq, t);
+        let inputs = CriticGradInputs {
+            obs: &[&obs[..]],
+            act: &[&act[..]],
+            h1: &[&tape.h1[..]],
+            h2: &[&tape.h2[..]],
+            d_h1: &[&tape.d_h1[..]],
+            d_h2: &[&tape.d_h2[..]],
+            dq: &[&dq[..]],
+        };
+        for part in grad.grad_parts(usize::MAX).iter_mut() {
+            part.compute(&inputs);
+        }
+    }
+
+    /// Splits `self` (a gradient) into independent blocks for [`CriticGradPart::compute`]
+    /// (see [`crate::actor::Actor::grad_parts`]).
+    pub fn grad_parts(
+        &mut self,
+        rows: usize,
+    ) -> heapless::Vec<CriticGradPart<'_, OBS, ACT, H1, H2>, MAX_PARTS> {
+        let mut parts = heapless::Vec::new();
+        let rows = rows.max(H1.div_ceil(MAX_PARTS - 3)).max(1);
+        let mut push = |p| {
+            if parts.push(p).is_err() {
+                unreachable!("block count is bounded above");
+            }
+        };
+        push(CriticGradPart::First {
+            s: &mut self.l1s,
+            a: &mut self.l1a,
+        });
+        let mut i0 = 0;
+        for block in self.l2.w.chunks_mut(rows) {
+            let n = block.len();
+            push(CriticGradPart::Second { w: block, i0 });
+            i0 += n;
+        }
+        push(CriticGradPart::SecondBias(&mut self.l2.b));
+        push(CriticGradPart::Out(&mut self.out));
+        parts
     }
 
     /// `Q(s, a)` for one pair.
@@ -147,10 +208,8 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         let mut h2 = [[0f32; H2]; 1];
         let mut q = [[0f32; 1]; 1];
         self.l1s.forward(core::slice::from_ref(obs), &mut h1);
-        accumulate(core::slice::from_ref(act), &self.l1a.w, &mut h1);
-        relu(&mut h1);
-        self.l2.forward(&h1, &mut h2);
-        relu(&mut h2);
+        kernel::<ACT, H1, true>(core::slice::from_ref(act), &self.l1a.w, Start::Y, &mut h1);
+        self.l2.forward_relu(&h1, &mut h2);
         self.out.forward(&h2, &mut q);
         q[0][0]
     }
@@ -159,6 +218,95 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
     pub const fn forward_macs() -> usize {
         (OBS + ACT) * H1 + H1 * H2 + H2
     }
+}
+
+/// One independent block of a critic's weight gradient (see [`Critic::grad_parts`]).
+pub enum CriticGradPart<'a, const OBS: usize, const ACT: usize, const H1: usize, const H2: usize> {
+    /// The first layer (observation block with the bias, action block).
+    First {
+        /// Observation block and bias.
+        s: &'a mut Linear<OBS, H1>,
+        /// Action block.
+        a: &'a mut Weights<ACT, H1>,
+    },
+    /// Second-layer weight rows `i0 ..`.
+    Second {
+        /// The rows.
+        w: &'a mut [[f32; H2]],
+        /// Index of the first row.
+        i0: usize,
+    },
+    /// The second layer's bias.
+    SecondBias(&'a mut [f32; H2]),
+    /// The output layer.
+    Out(&'a mut Linear<H2, 1>),
+}
+
+/// The activations and gradients of a batch held in chunks (entry `c` of every list is chunk
+/// `c`), as the critic's weight gradients read them.
+pub struct CriticGradInputs<
+    'a,
+    const OBS: usize,
+    const ACT: usize,
+    const H1: usize,
+    const H2: usize,
+> {
+    /// States.
+    pub obs: &'a [&'a [[f32; OBS]]],
+    /// Actions.
+    pub act: &'a [&'a [[f32; ACT]]],
+    /// First hidden activations.
+    pub h1: &'a [&'a [[f32; H1]]],
+    /// Second hidden activations.
+    pub h2: &'a [&'a [[f32; H2]]],
+    /// Gradients at the first hidden layer's pre-activations.
+    pub d_h1: &'a [&'a [[f32; H1]]],
+    /// Gradients at the second hidden layer's pre-activations.
+    pub d_h2: &'a [&'a [[f32; H2]]],
+    /// Gradients at the output.
+    pub dq: &'a [&'a [[f32; 1]]],
+}
+
+impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
+    CriticGradPart<'_, OBS, ACT, H1, H2>
+{
+    /// Computes this block of the gradient (overwriting it) and returns the sum of its
+    /// squares.
+    pub fn compute(&mut self, x: &CriticGradInputs<'_, OBS, ACT, H1, H2>) -> f64 {
+        match self {
+            Self::First { s, a } => {
+                weight_grad_chunks(x.obs, x.d_h1, 0, &mut s.w);
+                bias_grad_chunks(x.d_h1, &mut s.b);
+                weight_grad_chunks(x.act, x.d_h1, 0, &mut a.w);
+                sum_squares(s.w.as_flattened())
+                    + sum_squares(&s.b)
+                    + sum_squares(a.w.as_flattened())
+            }
+            Self::Second { w, i0 } => {
+                weight_grad_chunks(x.h1, x.d_h2, *i0, w);
+                sum_squares(w.as_flattened())
+            }
+            Self::SecondBias(b) => {
+                bias_grad_chunks(x.d_h2, b);
+                sum_squares(&b[..])
+            }
+            Self::Out(l) => {
+                weight_grad_chunks(x.h2, x.dq, 0, &mut l.w);
+                bias_grad_chunks(x.dq, &mut l.b);
+                sum_squares(l.w.as_flattened()) + sum_squares(&l.b)
+            }
+        }
+    }
+}
+
+/// The critic's weights transposed (output-major), as the backward pass multiplies by them.
+#[derive(Clone, Zeroable)]
+#[repr(C)]
+pub struct CriticTransposed<const H1: usize, const H2: usize> {
+    /// Output layer.
+    pub out: [[f32; H2]; 1],
+    /// Second layer.
+    pub l2: [[f32; H1]; H2],
 }
 
 /// Activations and backward scratch for a batch of `B` pairs.
@@ -173,6 +321,4 @@ pub struct CriticTape<const B: usize, const H1: usize, const H2: usize> {
     pub d_h2: [[f32; H2]; B],
     /// Gradient at the first hidden layer.
     pub d_h1: [[f32; H1]; B],
-    /// Transposed second-layer weights (scratch of the input gradient).
-    pub w2t: [[f32; H1]; H2],
 }

@@ -34,44 +34,91 @@ pub struct EStepSolution {
     pub converged: bool,
 }
 
-/// Dual value, derivative in `ln eta` and second derivative in `ln eta`:
-/// `(g(eta), eps - KL(eta), mean Var)`.
-fn dual_terms<const M: usize>(q: &[[f32; M]], eps: f64, eta: f64) -> (f64, f64, f64) {
-    let mut lse_sum = 0.0;
-    let mut kl_sum = 0.0;
-    let mut var_sum = 0.0;
-    for row in q {
-        let mut mx = f64::NEG_INFINITY;
-        for &v in row {
-            mx = mx.max(v as f64);
-        }
-        // z_j = (Q_j - max) / eta <= 0; s = sum exp(z); E[z], E[z^2] under softmax weights.
-        let mut s = 0.0;
-        let mut ez = 0.0;
-        let mut ez2 = 0.0;
-        for &v in row {
-            let z = (v as f64 - mx) / eta;
-            let e = libm::exp(z);
-            s += e;
-            ez += e * z;
-            ez2 += e * z * z;
-        }
-        ez /= s;
-        ez2 /= s;
-        let log_mean = libm::log(s) - libm::log(M as f64);
-        // log mean_j exp(Q_j / eta) = max / eta + log_mean.
-        lse_sum += mx / eta + log_mean;
-        // KL(w || uniform) = E_w[z] - log mean exp(z).
-        kl_sum += ez - log_mean;
-        var_sum += (ez2 - ez * ez).max(0.0);
+/// One state's share of the dual at a temperature (see [`dual_row`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Zeroable)]
+pub struct DualRow {
+    /// `log mean_j exp(Q_j / eta)`.
+    pub lse: f64,
+    /// `KL(q || uniform)` of the state's weights at `eta`.
+    pub kl: f64,
+    /// Variance of `Q / eta` under the weights (the curvature term).
+    pub var: f64,
+}
+
+/// Sums of [`DualRow`]s over the batch, added in state order.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DualSums {
+    /// Sum of `lse`.
+    pub lse: f64,
+    /// Sum of `kl`.
+    pub kl: f64,
+    /// Sum of `var`.
+    pub var: f64,
+    /// Number of states.
+    pub rows: usize,
+}
+
+impl DualSums {
+    /// Adds one state's terms.
+    pub fn add(&mut self, r: &DualRow) {
+        self.lse += r.lse;
+        self.kl += r.kl;
+        self.var += r.var;
+        self.rows += 1;
     }
-    let n = q.len() as f64;
-    (eta * eps + eta * lse_sum / n, eps - kl_sum / n, var_sum / n)
+}
+
+/// One state's terms of the dual at `eta`, with a log-sum-exp around the state's largest `Q`.
+pub fn dual_row<const M: usize>(row: &[f32; M], eta: f64) -> DualRow {
+    let mut mx = f64::NEG_INFINITY;
+    for &v in row {
+        mx = mx.max(v as f64);
+    }
+    // z_j = (Q_j - max) / eta <= 0; s = sum exp(z); E[z], E[z^2] under softmax weights.
+    let mut s = 0.0;
+    let mut ez = 0.0;
+    let mut ez2 = 0.0;
+    for &v in row {
+        let z = (v as f64 - mx) / eta;
+        let e = libm::exp(z);
+        s += e;
+        ez += e * z;
+        ez2 += e * z * z;
+    }
+    ez /= s;
+    ez2 /= s;
+    let log_mean = libm::log(s) - libm::log(M as f64);
+    DualRow {
+        // log mean_j exp(Q_j / eta) = max / eta + log_mean.
+        lse: mx / eta + log_mean,
+        // KL(w || uniform) = E_w[z] - log mean exp(z).
+        kl: ez - log_mean,
+        var: (ez2 - ez * ez).max(0.0),
+    }
+}
+
+/// Dual value, derivative in `ln eta` and second derivative in `ln eta` from the summed rows:
+/// `(g(eta), eps - KL(eta), mean Var)`.
+fn dual_terms_from(sums: &DualSums, eps: f64, eta: f64) -> (f64, f64, f64) {
+    let n = sums.rows as f64;
+    (
+        eta * eps + eta * sums.lse / n,
+        eps - sums.kl / n,
+        sums.var / n,
+    )
+}
+
+fn sum_rows<const M: usize>(q: &[[f32; M]], eta: f64) -> DualSums {
+    let mut s = DualSums::default();
+    for row in q {
+        s.add(&dual_row(row, eta));
+    }
+    s
 }
 
 /// The dual `g(eta)` (for tests and diagnostics).
 pub fn dual<const M: usize>(q: &[[f32; M]], eps: f32, eta: f64) -> f64 {
-    dual_terms(q, eps as f64, eta).0
+    dual_terms_from(&sum_rows(q, eta), eps as f64, eta).0
 }
 
 /// Minimises the dual over `eta` in `[ETA_MIN, ETA_MAX]`, starting from `eta_start`.
@@ -87,14 +134,29 @@ pub fn solve_temperature<const M: usize>(
     tol: f64,
     max_iter: u32,
 ) -> EStepSolution {
+    solve_temperature_with(eps, eta_start, tol, max_iter, &mut |eta| sum_rows(q, eta))
+}
+
+/// [`solve_temperature`] with the batch's summed [`DualRow`]s at a temperature computed by
+/// `eval` (which may spread the states over threads, as long as it adds them in order).
+pub fn solve_temperature_with(
+    eps: f32,
+    eta_start: f32,
+    tol: f64,
+    max_iter: u32,
+    eval: &mut dyn FnMut(f64) -> DualSums,
+) -> EStepSolution {
     let eps = eps as f64;
+    let mut terms = |eta: f64| dual_terms_from(&eval(eta), eps, eta);
     let (lo_lim, hi_lim) = (libm::log(ETA_MIN), libm::log(ETA_MAX));
     let mut u = libm::log((eta_start as f64).clamp(ETA_MIN, ETA_MAX));
     let (mut lo, mut hi) = (lo_lim, hi_lim);
     let mut it = 0;
     let mut converged = false;
+    let mut last: (f64, f64, f64);
     loop {
-        let (_, h, dh) = dual_terms(q, eps, libm::exp(u));
+        let (g, h, dh) = terms(libm::exp(u));
+        last = (u, g, h);
         it += 1;
         if h.abs() <= tol * eps {
             converged = true;
@@ -123,7 +185,8 @@ pub fn solve_temperature<const M: usize>(
         };
         if (u == lo_lim && h > 0.0) || (u == hi_lim && h < 0.0) {
             // Evaluate at the clamp once more and stop there.
-            let (_, h2, _) = dual_terms(q, eps, libm::exp(u));
+            let (g2, h2, _) = terms(libm::exp(u));
+            last = (u, g2, h2);
             it += 1;
             converged = h2.abs() <= tol * eps;
             if (h2 > 0.0) == (h > 0.0) {
@@ -131,10 +194,10 @@ pub fn solve_temperature<const M: usize>(
             }
         }
     }
-    let eta = libm::exp(u);
-    let (g, h, _) = dual_terms(q, eps, eta);
+    // The result is the last point evaluated (no extra pass over the batch).
+    let (u, g, h) = last;
     EStepSolution {
-        eta: eta as f32,
+        eta: libm::exp(u) as f32,
         dual: g,
         kl: eps - h,
         iterations: it,

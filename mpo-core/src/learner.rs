@@ -1,113 +1,97 @@
 //! The MPO learner: policy evaluation, E-step and M-step over one sampled batch.
 //!
-//! One [`Learner::update`] on a batch of `B` transitions:
-//! 1. **Policy evaluation** (TD(0), the report's method): for each next state, `N` actions
-//!    from the target policy, `y = r + bootstrap * mean_j Q_target(s', a'_j)`; one Adam step
-//!    on `0.5 mean (Q(s, a) - y)^2`.
-//! 2. **E-step** (paper eq. 7-8): `M` actions per state from the target policy, their values
-//!    under the target critic, the temperature from the dual ([`crate::estep`]) and the
-//!    weights `q_ij = softmax_j(Q_ij / eta*)`.
-//! 3. **M-step** (paper eq. 9-10 with the decoupled constraints of ALGORITHM-NOTES.md item 1),
-//!    `mstep_iters` times: minimise
-//!    the sum of `alpha_mu KL_mu + alpha_Sigma KL_Sigma` and the weighted negative
-//!    log-likelihood `(1/B) sum_ij q_ij [ln N(a_ij; mu_theta, Sigma_old) + ln N(a_ij; mu_old, Sigma_theta)]`
-//!    (with a minus sign) over the actor (multipliers held constant: a stop-gradient), and
-//!    `alpha (eps - KL)` over the multipliers (KLs held constant), with
-//!    `KL_mu = KL(pi_old || N(mu_theta, Sigma_old))` and
-//!    `KL_Sigma = KL(pi_old || N(mu_old, Sigma_theta))`. The multipliers are `exp(raw)`
-//!    (clamped to `[e^-18, e^18]`), so they stay `>= 0` and Adam changes them by a factor per
-//!    step rather than by an amount: a multiplier that must grow (or shrink) by orders of
-//!    magnitude gets there in tens of updates.
-//! 4. Every `target_period` updates the target networks take the online parameters.
+//! One [`Learner::update`] on a batch of `B = BC * C` rows (`C` chunks of `BC`):
+//! 1. **Policy evaluation**: the critic regresses `Q(s_0, a_0)` on a target built from the
+//!    target networks with `N` target-policy actions per next state: with `sequence_len = 1`
+//!    the TD(0) expected-SARSA target `r + bootstrap * mean_j Q'(s', a'_j)` (n-step
+//!    transitions are folded by the caller into `r` and `bootstrap`), with `sequence_len > 1`
+//!    Retrace over the row's consecutive transitions ([`crate::evaluation::retrace`]). One
+//!    Adam step on `0.5 mean (Q - y)^2`.
+//! 2. **E-step** ([`crate::estep`], paper eq. 7-8): `M` actions per state from the target
+//!    policy, their target-critic values, the temperature from the dual and the weights
+//!    `softmax_j(Q_ij / eta*)`; with action penalization a second temperature and set of
+//!    weights for `-|a - clip(a)|^2` over the same samples. With `shared_samples` (Acme) the
+//!    E-step reuses the TD target's `N` samples at the next states.
+//! 3. **M-step** ([`crate::mstep`]), `mstep_iters` times: one Adam step of the actor on the
+//!    weighted likelihood with the decoupled KL penalties, one of the multipliers.
+//! 4. The targets follow the online networks: a copy every `target_period` updates, or Polyak
+//!    averaging with `target_tau` after every update.
 //!
-//! "Old" is the target policy throughout. Shapes: `B` batch, `M` E-step samples per state,
-//! `N` next-action samples per next state. Everything lives in the struct: construct it zeroed
+//! **Threads, same bits.** The work of each phase is split into independent items and handed
+//! to a [`Parallel`]: the batch chunks for everything per row (network passes, sampling, the
+//! Gaussian algebra), blocks of parameter rows for the weight gradients. Every row draws from
+//! its own random stream keyed by the update and the row's index, every weight gradient sums
+//! its rows in batch order, and every reduction over rows (losses, KLs, the E-step's dual)
+//! adds them in batch order afterwards. So the result depends on `B` and the configuration,
+//! never on `C`, on the number of threads or on their timing.
+//!
+//! "Old" is the target policy throughout. Everything lives in the struct: construct it zeroed
 //! (`bytemuck::zeroed_box` on a host, a zeroed static on a device), then [`Learner::init`].
 //! A non-finite value anywhere in an update makes it return an error with every parameter,
 //! optimiser moment and multiplier as it was before the update.
 
 use bytemuck::Zeroable;
 
-use crate::actor::{Actor, ActorTape};
+use crate::actor::{Actor, ActorGradInputs, ActorTape, ActorTransposed};
 use crate::adam::{AdamConfig, AdamState, adam_step};
 use crate::config::{ConfigError, MpoConfig};
-use crate::critic::{Critic, CriticTape};
-use crate::estep::{solve_temperature, weights};
-use crate::gaussian::{Gaussian, GaussianGrad, head_backward, kl_per_dim_grad};
-
-/// Clamp of `ln alpha` (Acme clamps the duals below at `exp(-18)`).
-const LOG_ALPHA_MAX: f32 = 18.0;
-use crate::params::{Params, clip_global_norm};
+use crate::critic::{Critic, CriticGradInputs, CriticTape, CriticTransposed};
+use crate::estep::{DualRow, DualSums, dual_row, solve_temperature_with};
+use crate::gaussian::{Gaussian, SampleStats};
+use crate::mstep::{LOG_ALPHA_MAX, StateTerms, state_gradient, update_multipliers};
+use crate::parallel::{Parallel, Serial};
+use crate::params::Params;
 use crate::rng::Rng;
 
-/// A batch of transitions, filled by the caller before [`Learner::update`].
+/// Random stream tags (see [`Rng::for_stream`]): E-step samples, and next-action samples of
+/// sequence position `k` at `STREAM_NEXT + k`.
+const STREAM_ESTEP: u32 = 0;
+const STREAM_NEXT: u32 = 1;
+
+/// One chunk of the batch: `BC` rows of up to `L` consecutive transitions, position-major
+/// (`[k][n]` is transition `k` of row `n`). Single-transition batches use position 0 only.
 #[derive(Clone, Zeroable)]
 #[repr(C)]
-pub struct Batch<const B: usize, const OBS: usize, const ACT: usize> {
-    /// States.
-    pub obs: [[f32; OBS]; B],
-    /// Actions taken.
-    pub action: [[f32; ACT]; B],
-    /// Rewards (n-step sums for n-step transitions).
-    pub reward: [f32; B],
-    /// Next states (`s_{t+n}` for n-step transitions).
-    pub next_obs: [[f32; OBS]; B],
+pub struct BatchChunk<const BC: usize, const L: usize, const OBS: usize, const ACT: usize> {
+    /// States `s_k`.
+    pub obs: [[[f32; OBS]; BC]; L],
+    /// Actions `a_k` taken by the behaviour policy (as sampled, before the plant clips them).
+    pub action: [[[f32; ACT]; BC]; L],
+    /// Rewards `r_k` (n-step sums for n-step transitions).
+    pub reward: [[f32; BC]; L],
+    /// Next states `s_{k+1}` (`s_{k+n}` for n-step transitions).
+    pub next_obs: [[[f32; OBS]; BC]; L],
     /// Multiplier of the next-state value: `gamma^n` times the environment's discounts (0
     /// after a true terminal; a time-limit truncation keeps it).
-    pub bootstrap: [f32; B],
+    pub bootstrap: [[f32; BC]; L],
+    /// `ln b(a_k | s_k)` of the behaviour policy (Retrace's importance weights).
+    pub behaviour_log_prob: [[f32; BC]; L],
 }
 
-impl<const B: usize, const OBS: usize, const ACT: usize> Batch<B, OBS, ACT> {
-    fn all_finite(&self) -> bool {
-        self.obs.as_flattened().iter().all(|x| x.is_finite())
-            && self.action.as_flattened().iter().all(|x| x.is_finite())
-            && self.next_obs.as_flattened().iter().all(|x| x.is_finite())
-            && self.reward.iter().all(|x| x.is_finite())
-            && self.bootstrap.iter().all(|x| x.is_finite())
-    }
-}
-
-/// `B` replayed sequences of `L` consecutive transitions (position-major: `[k][n]` is
-/// transition `k` of sequence `n`), for [`Learner::update_retrace`].
-#[derive(Clone, Zeroable)]
-#[repr(C)]
-pub struct SequenceBatch<const B: usize, const L: usize, const OBS: usize, const ACT: usize> {
-    /// States `s_k`.
-    pub obs: [[[f32; OBS]; B]; L],
-    /// Actions `a_k` taken by the behaviour policy.
-    pub action: [[[f32; ACT]; B]; L],
-    /// Rewards `r_k`.
-    pub reward: [[f32; B]; L],
-    /// Next states `s_{k+1}`.
-    pub next_obs: [[[f32; OBS]; B]; L],
-    /// Environment discount after step `k` (0 at a terminal; 1 at a time-limit truncation).
-    pub discount: [[f32; B]; L],
-    /// `ln b(a_k | s_k)` of the behaviour policy, stored in the replay when acting.
-    pub behaviour_log_prob: [[f32; B]; L],
-}
-
-impl<const B: usize, const L: usize, const OBS: usize, const ACT: usize>
-    SequenceBatch<B, L, OBS, ACT>
+impl<const BC: usize, const L: usize, const OBS: usize, const ACT: usize>
+    BatchChunk<BC, L, OBS, ACT>
 {
-    fn all_finite(&self) -> bool {
+    fn all_finite(&self, len: usize) -> bool {
         let f = |x: &[f32]| x.iter().all(|v| v.is_finite());
-        (0..L).all(|k| {
+        (0..len).all(|k| {
             f(self.obs[k].as_flattened())
                 && f(self.action[k].as_flattened())
                 && f(self.next_obs[k].as_flattened())
                 && f(&self.reward[k])
-                && f(&self.discount[k])
+                && f(&self.bootstrap[k])
                 && f(&self.behaviour_log_prob[k])
         })
     }
 }
 
-/// The M-step multipliers (log parameterisation) and the temperature, with the
+/// The M-step multipliers (log parameterisation) and the temperatures, with the
 /// multipliers' Adam state.
 #[derive(Clone, Copy, Debug, PartialEq, Zeroable)]
 pub struct Duals<const ACT: usize> {
     /// E-step temperature `eta*` of the last update (the warm start of the next).
     pub eta: f32,
+    /// Temperature of the action-penalty objective (with action penalization).
+    pub eta_penalty: f32,
     /// `alpha_mu = exp(raw)` per dimension (all equal without per-dimension KL).
     pub alpha_mean_raw: [f32; ACT],
     /// `alpha_Sigma = exp(raw)` per dimension.
@@ -135,31 +119,40 @@ pub struct Trainable<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
 > {
     /// Online policy.
-    pub actor: Actor<OBS, ACT, TRI, H1, H2>,
+    pub actor: Actor<OBS, ACT, TRI, AH1, AH2>,
     /// Online critic.
-    pub critic: Critic<OBS, ACT, H1, H2>,
+    pub critic: Critic<OBS, ACT, QH1, QH2>,
     /// Actor Adam first moments.
-    pub actor_m: Actor<OBS, ACT, TRI, H1, H2>,
+    pub actor_m: Actor<OBS, ACT, TRI, AH1, AH2>,
     /// Actor Adam second moments.
-    pub actor_v: Actor<OBS, ACT, TRI, H1, H2>,
+    pub actor_v: Actor<OBS, ACT, TRI, AH1, AH2>,
     /// Critic Adam first moments.
-    pub critic_m: Critic<OBS, ACT, H1, H2>,
+    pub critic_m: Critic<OBS, ACT, QH1, QH2>,
     /// Critic Adam second moments.
-    pub critic_v: Critic<OBS, ACT, H1, H2>,
+    pub critic_v: Critic<OBS, ACT, QH1, QH2>,
     /// Actor Adam state.
     pub actor_opt: AdamState,
     /// Critic Adam state.
     pub critic_opt: AdamState,
-    /// Temperature and multipliers.
+    /// Temperatures and multipliers.
     pub duals: Duals<ACT>,
 }
 
-impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize>
-    Trainable<OBS, ACT, TRI, H1, H2>
+impl<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+> Trainable<OBS, ACT, TRI, AH1, AH2, QH1, QH2>
 {
     /// Copies every field in place (no temporary on the stack).
     pub fn copy_from(&mut self, o: &Self) {
@@ -175,34 +168,66 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 }
 
-/// Scratch memory of one update.
+/// Per-chunk scratch: everything one batch chunk's rows need, so chunks can run on
+/// different threads with nothing mutable shared.
 #[derive(Zeroable)]
-struct Scratch<
+struct Chunk<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const L: usize,
     const M: usize,
+    const N: usize,
 > {
-    atape: ActorTape<B, H1, H2>,
-    ctape: CriticTape<B, H1, H2>,
-    mean: [[f32; ACT]; B],
-    chol: [[f32; TRI]; B],
-    d_mean: [[f32; ACT]; B],
-    d_chol: [[f32; TRI]; B],
-    old: [Gaussian<ACT>; B],
-    pre1: [[f32; H1]; B],
-    next_action: [[f32; ACT]; B],
-    samples: [[[f32; ACT]; B]; M],
-    q_samples: [[f32; M]; B],
-    weights: [[f32; M]; B],
-    q: [[f32; 1]; B],
-    target: [f32; B],
-    dq: [[f32; 1]; B],
-    actor_grad: Actor<OBS, ACT, TRI, H1, H2>,
-    critic_grad: Critic<OBS, ACT, H1, H2>,
+    atape: ActorTape<BC, AH1, AH2>,
+    ctape: CriticTape<BC, QH1, QH2>,
+    mean: [[f32; ACT]; BC],
+    chol: [[f32; TRI]; BC],
+    d_mean: [[f32; ACT]; BC],
+    d_chol: [[f32; TRI]; BC],
+    /// The target policy at the improvement states.
+    old: [Gaussian<ACT>; BC],
+    /// The target policy at the current position's next states (Retrace reuses it at the
+    /// next position, where they are the states).
+    next_pi: [Gaussian<ACT>; BC],
+    pre1: [[f32; QH1]; BC],
+    next_samples: [[[f32; ACT]; BC]; N],
+    samples: [[[f32; ACT]; BC]; M],
+    q_samples: [[f32; M]; BC],
+    q_penalty: [[f32; M]; BC],
+    stats: [SampleStats<ACT>; BC],
+    q: [[f32; 1]; BC],
+    dq: [[f32; 1]; BC],
+    target: [f32; BC],
+    err: [f32; BC],
+    ret_q: [[f32; BC]; L],
+    ret_v: [[f32; BC]; L],
+    ret_log_ratio: [[f32; BC]; L],
+    dual: [DualRow; BC],
+    estep_kl: [f32; BC],
+    terms: [StateTerms<ACT>; BC],
+}
+
+/// Gradients and transposed weights (shared, read by every chunk).
+#[derive(Zeroable)]
+struct Grads<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+> {
+    actor: Actor<OBS, ACT, TRI, AH1, AH2>,
+    critic: Critic<OBS, ACT, QH1, QH2>,
+    at: ActorTransposed<ACT, TRI, AH1, AH2>,
+    ct: CriticTransposed<QH1, QH2>,
 }
 
 /// Where a non-finite value was found.
@@ -250,7 +275,7 @@ pub struct UpdateStats {
     pub target_mean: f32,
     /// Mean `Q` over the E-step samples.
     pub q_mean: f32,
-    /// Smallest and largest E-step `Q`.
+    /// Smallest E-step `Q`.
     pub q_min: f32,
     /// Largest E-step `Q`.
     pub q_max: f32,
@@ -260,6 +285,10 @@ pub struct UpdateStats {
     pub estep_kl: f32,
     /// Temperature solver iterations.
     pub estep_iterations: u32,
+    /// Temperature of the action-penalty objective (0 without action penalization).
+    pub eta_penalty: f32,
+    /// Mean over the E-step samples of `|a - clip(a, -1, 1)|^2`.
+    pub action_excess: f32,
     /// Mean `alpha_mu` over dimensions, after the update.
     pub alpha_mean: f32,
     /// Mean `alpha_Sigma` over dimensions, after the update.
@@ -282,7 +311,7 @@ pub struct UpdateStats {
     pub mu_mean: f32,
     /// Mean of `|mu|`.
     pub mu_abs_mean: f32,
-    /// Mean, smallest and largest standard deviation over states and dimensions.
+    /// Mean standard deviation over states and dimensions.
     pub std_mean: f32,
     /// Smallest standard deviation.
     pub std_min: f32,
@@ -291,53 +320,90 @@ pub struct UpdateStats {
 }
 
 /// The complete MPO learner for `OBS` observations and `ACT` actions
-/// (`TRI = ACT (ACT + 1) / 2`), hidden widths `H1`, `H2`, batch `B`, `M` E-step samples per
-/// state and `N` next-action samples per next state.
+/// (`TRI = ACT (ACT + 1) / 2`), actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`, a batch
+/// of `C` chunks of `BC` rows of up to `L` transitions, `M` E-step samples per state and `N`
+/// next-action samples per next state.
 #[derive(Zeroable)]
 pub struct Learner<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
 > {
     /// Hyperparameters (validated by [`Learner::init`]).
     pub cfg: MpoConfig,
     /// Online networks, optimiser states and duals.
-    pub live: Trainable<OBS, ACT, TRI, H1, H2>,
+    pub live: Trainable<OBS, ACT, TRI, AH1, AH2, QH1, QH2>,
     /// Target (old) policy.
-    pub target_actor: Actor<OBS, ACT, TRI, H1, H2>,
+    pub target_actor: Actor<OBS, ACT, TRI, AH1, AH2>,
     /// Target critic.
-    pub target_critic: Critic<OBS, ACT, H1, H2>,
+    pub target_critic: Critic<OBS, ACT, QH1, QH2>,
     /// Updates completed.
     pub updates: u64,
     /// State of the learner's random stream (restored exactly from checkpoints).
     pub rng_state: [u8; 32],
-    /// The batch the next update learns from.
-    pub batch: Batch<B, OBS, ACT>,
-    backup: Trainable<OBS, ACT, TRI, H1, H2>,
-    s: Scratch<OBS, ACT, TRI, H1, H2, B, M>,
+    /// The batch the next update learns from, in chunks (row `n` is `batch[n / BC]`, slot
+    /// `n % BC`: see [`Learner::slot`]).
+    pub batch: [BatchChunk<BC, L, OBS, ACT>; C],
+    backup: Trainable<OBS, ACT, TRI, AH1, AH2, QH1, QH2>,
+    grads: Grads<OBS, ACT, TRI, AH1, AH2, QH1, QH2>,
+    chunks: [Chunk<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, L, M, N>; C],
+}
+
+/// Weight-gradient rows per parameter block: a multiple of the kernel's 6-row tile, about
+/// eight blocks at a width of 256.
+const fn block_rows(h: usize) -> usize {
+    6 * h.div_ceil(48)
 }
 
 impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
-> Learner<OBS, ACT, TRI, H1, H2, B, M, N>
+> Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>
 {
+    /// Rows in a batch.
+    pub const B: usize = BC * C;
+
     /// Validates `cfg`, initialises the networks from `seed` and resets every optimiser,
     /// multiplier and counter.
     pub fn init(&mut self, cfg: MpoConfig, seed: u64) -> Result<(), ConfigError> {
         cfg.validate()?;
-        const { assert!(B > 0 && M > 0 && N > 0, "B, M and N must be positive") };
+        const {
+            assert!(
+                BC > 0 && C > 0 && L > 0 && M > 0 && N > 0,
+                "BC, C, L, M and N must be positive"
+            )
+        };
+        if cfg.sequence_len as usize > L {
+            return Err(ConfigError {
+                field: "sequence_len",
+                requirement: "at most the learner's sequence capacity L",
+            });
+        }
+        if cfg.shared_samples && M != N {
+            return Err(ConfigError {
+                field: "shared_samples",
+                requirement: "false unless the learner has M = N",
+            });
+        }
         self.cfg = cfg;
         let mut rng = Rng::seed_from_u64(seed);
         let l = &mut self.live;
@@ -349,12 +415,12 @@ impl<
         l.critic_v.fill_zero();
         l.actor_opt = AdamState::default();
         l.critic_opt = AdamState::default();
+        let raw = |x: f32| libm::logf(x).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
         l.duals = Duals {
             eta: cfg.eta_init,
-            alpha_mean_raw: [libm::logf(cfg.alpha_mean_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
-                ACT],
-            alpha_cov_raw: [libm::logf(cfg.alpha_cov_init).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
-                ACT],
+            eta_penalty: cfg.eta_init,
+            alpha_mean_raw: [raw(cfg.alpha_mean_init); ACT],
+            alpha_cov_raw: [raw(cfg.alpha_cov_init); ACT],
             moments: [[0.0; ACT]; 4],
             opt: AdamState::default(),
         };
@@ -363,6 +429,11 @@ impl<
         self.updates = 0;
         self.rng_state = rng.state();
         Ok(())
+    }
+
+    /// The chunk and slot of batch row `n`.
+    pub const fn slot(n: usize) -> (usize, usize) {
+        (n / BC, n % BC)
     }
 
     /// A sampled action from the online policy and its log-probability (the behaviour policy
@@ -378,45 +449,52 @@ impl<
         self.live.actor.mean_action(obs, action);
     }
 
-    /// Multiply-adds... in FLOPs: the arithmetic of one update, counting the network passes
-    /// (2 FLOPs per multiply-add; forward, weight and input gradients), not the small
+    /// The arithmetic of one update in FLOPs under the current configuration, counting the
+    /// network passes (2 FLOPs per multiply-add; forward, weight and input gradients), not the
     /// per-sample Gaussian algebra.
-    pub const fn flops_per_update(mstep_iters: usize) -> u64 {
-        let a_fwd = Actor::<OBS, ACT, TRI, H1, H2>::forward_macs() as u64;
-        let c_fwd = Critic::<OBS, ACT, H1, H2>::forward_macs() as u64;
-        let c_tail = (H1 * H2 + H2) as u64; // the part after the shared observation block
-        let c_state = (OBS * H1) as u64;
-        let a_bwd = 2 * a_fwd - (OBS * H1) as u64; // weight grads + input grads but layer 1
-        let c_bwd = 2 * c_fwd - ((OBS + ACT) * H1) as u64;
-        let b = B as u64;
-        let next = a_fwd + c_state + N as u64 * (c_tail + (ACT * H1) as u64);
-        let critic_step = c_fwd + c_bwd;
-        let estep = a_fwd + c_state + M as u64 * (c_tail + (ACT * H1) as u64);
-        let mstep = mstep_iters as u64 * (a_fwd + a_bwd);
-        2 * b * (next + critic_step + estep + mstep)
+    pub fn flops_per_update(&self) -> u64 {
+        let a_fwd = Actor::<OBS, ACT, TRI, AH1, AH2>::forward_macs() as u64;
+        let c_fwd = Critic::<OBS, ACT, QH1, QH2>::forward_macs() as u64;
+        let c_tail = (QH1 * QH2 + QH2 + ACT * QH1) as u64; // after the shared state block
+        let c_state = (OBS * QH1) as u64;
+        let a_bwd = 2 * a_fwd - (OBS * AH1) as u64; // weight grads + input grads but layer 1
+        let c_bwd = 2 * c_fwd - ((OBS + ACT) * QH1) as u64;
+        let len = self.cfg.sequence_len as u64;
+        let next = len * (a_fwd + c_state + N as u64 * c_tail) + (len - 1) * c_tail;
+        let estep = if self.cfg.shared_samples {
+            0
+        } else {
+            a_fwd + c_state + M as u64 * c_tail
+        };
+        let mstep = self.cfg.mstep_iters as u64 * (a_fwd + a_bwd);
+        2 * Self::B as u64 * (next + c_fwd + c_bwd + estep + mstep)
     }
 
-    /// One learner update on `self.batch`. On error nothing but the random stream has changed.
+    /// One learner update on `self.batch`, on the calling thread. On error nothing but the
+    /// random stream has changed.
     pub fn update(&mut self) -> Result<UpdateStats, UpdateError> {
-        if !self.batch.all_finite() {
+        self.update_with(&Serial)
+    }
+
+    /// [`Learner::update`] with the work spread by `par`; the same bits for any `par`.
+    pub fn update_with<P: Parallel>(&mut self, par: &P) -> Result<UpdateStats, UpdateError> {
+        let len = self.cfg.sequence_len as usize;
+        if !self.batch.iter().all(|b| b.all_finite(len)) {
             return Err(UpdateError::NonFinite(NonFinite::Batch));
         }
         self.backup.copy_from(&self.live);
         let mut rng = Rng::from_state(self.rng_state);
-        let result = self.update_inner(&mut rng);
+        let seed = rng.next_u64();
         self.rng_state = rng.state();
-        self.finish(result)
-    }
-
-    /// Commits a successful update (counter, target copies) or undoes a failed one.
-    fn finish(
-        &mut self,
-        result: Result<UpdateStats, UpdateError>,
-    ) -> Result<UpdateStats, UpdateError> {
+        let result = self.update_inner(par, seed);
         match result {
             Ok(stats) => {
                 self.updates += 1;
-                if self.updates.is_multiple_of(self.cfg.target_period as u64) {
+                let tau = self.cfg.target_tau;
+                if tau > 0.0 {
+                    self.target_actor.polyak_from(&self.live.actor, tau);
+                    self.target_critic.polyak_from(&self.live.critic, tau);
+                } else if self.updates.is_multiple_of(self.cfg.target_period as u64) {
                     self.target_actor.copy_from(&self.live.actor);
                     self.target_critic.copy_from(&self.live.critic);
                 }
@@ -429,21 +507,17 @@ impl<
         }
     }
 
-    fn update_inner(&mut self, rng: &mut Rng) -> Result<UpdateStats, UpdateError> {
-        let mut stats = UpdateStats::default();
-        self.policy_evaluation(rng, &mut stats)?;
-        self.improve(rng, stats)
-    }
-
-    /// Policy improvement on the batch's states: the E-step, then the M-step iterations.
-    fn improve(
+    fn update_inner<P: Parallel>(
         &mut self,
-        rng: &mut Rng,
-        mut stats: UpdateStats,
+        par: &P,
+        seed: u64,
     ) -> Result<UpdateStats, UpdateError> {
-        self.e_step(rng, &mut stats)?;
+        let mut stats = UpdateStats::default();
+        self.evaluate_and_sample(par, seed, &mut stats)?;
+        self.critic_step(par, &mut stats)?;
+        self.e_step(par, &mut stats)?;
         for _ in 0..self.cfg.mstep_iters {
-            self.m_step(&mut stats)?;
+            self.m_step(par, &mut stats)?;
         }
         if !self.live.actor.all_finite() || !self.live.critic.all_finite() {
             return Err(UpdateError::NonFinite(NonFinite::Parameters));
@@ -454,341 +528,250 @@ impl<
         Ok(stats)
     }
 
-    /// TD(0) with the expectation over `N` next actions from the target policy.
-    fn policy_evaluation(
+    /// Every row's work that needs only the target networks and the online critic: the
+    /// E-step samples and their values, the policy-evaluation target, the online critic's
+    /// forward pass and its gradient down to the hidden layers. Then the row statistics.
+    fn evaluate_and_sample<P: Parallel>(
         &mut self,
-        rng: &mut Rng,
+        par: &P,
+        seed: u64,
         stats: &mut UpdateStats,
     ) -> Result<(), UpdateError> {
-        self.expected_next_value(rng);
-        let s = &mut self.s;
-        for n in 0..B {
-            s.target[n] = self.batch.reward[n] + self.batch.bootstrap[n] * s.target[n];
-        }
-        self.critic_step(stats)
-    }
-
-    /// `s.target[n] = mean_j Q_target(s'_n, a_j)` with `a_j ~ pi_target(s'_n)` for the batch's
-    /// next states.
-    fn expected_next_value(&mut self, rng: &mut Rng) {
-        let (s, batch, cfg) = (&mut self.s, &self.batch, &self.cfg);
-        let x = &batch.next_obs;
-        self.target_actor
-            .forward(x, &mut s.atape, &mut s.mean, &mut s.chol);
-        for n in 0..B {
-            s.old[n] = Gaussian::from_head(&s.mean[n], &s.chol[n], cfg.std_floor);
-        }
-        self.target_critic.state_part(x, &mut s.pre1);
-        s.target = [0.0; B];
-        for _ in 0..N {
-            for n in 0..B {
-                s.old[n].sample(rng, &mut s.next_action[n]);
-            }
-            self.target_critic.forward_from_state_part(
-                &s.pre1,
-                &s.next_action,
-                &mut s.ctape,
-                &mut s.q,
-            );
-            for n in 0..B {
-                s.target[n] += s.q[n][0];
-            }
-        }
-        for n in 0..B {
-            s.target[n] /= N as f32;
-        }
-    }
-
-    /// One Adam step of the critic towards `s.target` on the batch's `(obs, action)`.
-    fn critic_step(&mut self, stats: &mut UpdateStats) -> Result<(), UpdateError> {
-        let (s, batch, cfg) = (&mut self.s, &self.batch, &self.cfg);
-        let mut loss = 0.0;
-        let mut tmean = 0.0;
-        for n in 0..B {
-            tmean += s.target[n];
-        }
-        let live = &mut self.live;
-        live.critic
-            .forward(&batch.obs, &batch.action, &mut s.ctape, &mut s.q);
-        for n in 0..B {
-            let e = s.q[n][0] - s.target[n];
-            loss += 0.5 * e * e;
-            s.dq[n][0] = e / B as f32;
-        }
-        stats.critic_loss = loss / B as f32;
-        stats.target_mean = tmean / B as f32;
-        if !stats.critic_loss.is_finite() {
-            return Err(UpdateError::NonFinite(NonFinite::CriticLoss));
-        }
-        live.critic.backward(
-            &batch.obs,
-            &batch.action,
-            &mut s.ctape,
-            &s.dq,
-            &mut s.critic_grad,
+        self.live.critic.transpose_into(&mut self.grads.ct);
+        let (cfg, batch, ta, tc) = (
+            &self.cfg,
+            &self.batch,
+            &self.target_actor,
+            &self.target_critic,
         );
-        stats.critic_grad_norm = clip_global_norm(&mut s.critic_grad, cfg.critic_clip);
-        if !stats.critic_grad_norm.is_finite() {
-            return Err(UpdateError::NonFinite(NonFinite::CriticGradients));
-        }
-        let acfg = AdamConfig::with_lr(cfg.critic_lr);
-        adam_step(
-            &acfg,
-            &mut live.critic_opt,
-            &mut live.critic,
-            &s.critic_grad,
-            &mut live.critic_m,
-            &mut live.critic_v,
-        );
-        Ok(())
-    }
-
-    /// Retrace policy evaluation (paper eq. 11) on `B` replayed sequences of `L` transitions:
-    /// the critic regresses `Q(s_0, a_0)` on the Retrace target built from the target networks,
-    /// with traces `c_k = min(1, pi_target(a_k | s_k) / b(a_k | s_k))` from the stored
-    /// behaviour log-probabilities; then the E- and M-steps run on the first states `s_0`.
-    /// With `L = 1` this is exactly [`Learner::update`] on the first transitions.
-    pub fn update_retrace<const L: usize>(
-        &mut self,
-        seq: &SequenceBatch<B, L, OBS, ACT>,
-    ) -> Result<UpdateStats, UpdateError> {
-        const { assert!(L > 0, "sequences need at least one transition") };
-        if !seq.all_finite() {
-            return Err(UpdateError::NonFinite(NonFinite::Batch));
-        }
-        self.backup.copy_from(&self.live);
-        let mut rng = Rng::from_state(self.rng_state);
-        let result = self.retrace_inner(seq, &mut rng);
-        self.rng_state = rng.state();
-        self.finish(result)
-    }
-
-    fn retrace_inner<const L: usize>(
-        &mut self,
-        seq: &SequenceBatch<B, L, OBS, ACT>,
-        rng: &mut Rng,
-    ) -> Result<UpdateStats, UpdateError> {
-        // Per position k: V(s_{k+1}), Q_target(s_k, a_k) and ln pi_target(a_k|s_k) - ln b.
-        let mut v = [[0f32; B]; L];
-        let mut q = [[0f32; B]; L];
-        let mut log_ratio = [[0f32; B]; L];
-        for k in 0..L {
-            self.batch.obs = seq.obs[k];
-            self.batch.action = seq.action[k];
-            self.batch.next_obs = seq.next_obs[k];
-            self.expected_next_value(rng);
-            v[k] = self.s.target;
-            if k > 0 {
-                let (s, batch) = (&mut self.s, &self.batch);
-                self.target_actor
-                    .forward(&batch.obs, &mut s.atape, &mut s.mean, &mut s.chol);
-                self.target_critic
-                    .forward(&batch.obs, &batch.action, &mut s.ctape, &mut s.q);
-                for n in 0..B {
-                    let pi = Gaussian::from_head(&s.mean[n], &s.chol[n], self.cfg.std_floor);
-                    log_ratio[k][n] = pi.log_prob(&batch.action[n]) - seq.behaviour_log_prob[k][n];
-                    q[k][n] = s.q[n][0];
+        let (critic, ct) = (&self.live.critic, &self.grads.ct);
+        par.for_each(&mut self.chunks, &|c, ch| {
+            let b = &batch[c];
+            if !cfg.shared_samples {
+                estep_samples(cfg, ta, tc, &b.obs[0], seed, c, ch);
+            }
+            targets(cfg, ta, tc, b, seed, c, ch);
+            critic.forward(&b.obs[0], &b.action[0], &mut ch.ctape, &mut ch.q);
+            let inv_b = 1.0 / (BC * C) as f32;
+            for n in 0..BC {
+                ch.err[n] = ch.q[n][0] - ch.target[n];
+                ch.dq[n][0] = ch.err[n] * inv_b;
+            }
+            critic.backprop(&mut ch.ctape, &ch.dq, ct);
+            if cfg.action_penalization {
+                for n in 0..BC {
+                    for j in 0..M {
+                        ch.q_penalty[n][j] = -excess(&ch.samples[j][n]);
+                    }
+                }
+            }
+        });
+        let (mut loss, mut tsum) = (0f32, 0f32);
+        let (mut qsum, mut qmin, mut qmax, mut xsum) =
+            (0f64, f32::INFINITY, f32::NEG_INFINITY, 0f64);
+        for ch in &self.chunks {
+            for n in 0..BC {
+                loss += 0.5 * ch.err[n] * ch.err[n];
+                tsum += ch.target[n];
+                for j in 0..M {
+                    let v = ch.q_samples[n][j];
+                    qsum += v as f64;
+                    qmin = qmin.min(v);
+                    qmax = qmax.max(v);
+                    xsum += excess(&ch.samples[j][n]) as f64;
                 }
             }
         }
-        let (mut qn, mut vn, mut rn, mut dn, mut ln, mut out) = (
-            [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L],
-        );
-        for n in 0..B {
-            for k in 0..L {
-                qn[k] = q[k][n];
-                vn[k] = v[k][n];
-                rn[k] = seq.reward[k][n];
-                dn[k] = seq.discount[k][n];
-                ln[k] = log_ratio[k][n];
-            }
-            crate::evaluation::retrace(&qn, &vn, &rn, &dn, &ln, self.cfg.gamma, &mut out);
-            self.s.target[n] = out[0];
-        }
-        self.batch.obs = seq.obs[0];
-        self.batch.action = seq.action[0];
-        self.batch.next_obs = seq.next_obs[0];
-        for n in 0..B {
-            self.batch.reward[n] = seq.reward[0][n];
-            self.batch.bootstrap[n] = self.cfg.gamma * seq.discount[0][n];
-        }
-        let mut stats = UpdateStats::default();
-        self.critic_step(&mut stats)?;
-        self.improve(rng, stats)
-    }
-
-    /// Samples, values, temperature and weights.
-    fn e_step(&mut self, rng: &mut Rng, stats: &mut UpdateStats) -> Result<(), UpdateError> {
-        let (s, batch, cfg) = (&mut self.s, &self.batch, &self.cfg);
-        self.target_actor
-            .forward(&batch.obs, &mut s.atape, &mut s.mean, &mut s.chol);
-        for n in 0..B {
-            s.old[n] = Gaussian::from_head(&s.mean[n], &s.chol[n], cfg.std_floor);
-        }
-        self.target_critic.state_part(&batch.obs, &mut s.pre1);
-        for j in 0..M {
-            for n in 0..B {
-                s.old[n].sample(rng, &mut s.samples[j][n]);
-            }
-            self.target_critic.forward_from_state_part(
-                &s.pre1,
-                &s.samples[j],
-                &mut s.ctape,
-                &mut s.q,
-            );
-            for n in 0..B {
-                s.q_samples[n][j] = s.q[n][0];
-            }
-        }
-        let (mut qsum, mut qmin, mut qmax) = (0f64, f32::INFINITY, f32::NEG_INFINITY);
-        for row in &s.q_samples {
-            for &v in row {
-                qsum += v as f64;
-                qmin = qmin.min(v);
-                qmax = qmax.max(v);
-            }
+        let b = Self::B as f32;
+        stats.critic_loss = loss / b;
+        stats.target_mean = tsum / b;
+        stats.q_mean = (qsum / (Self::B * M) as f64) as f32;
+        stats.q_min = qmin;
+        stats.q_max = qmax;
+        stats.action_excess = (xsum / (Self::B * M) as f64) as f32;
+        if !stats.critic_loss.is_finite() {
+            return Err(UpdateError::NonFinite(NonFinite::CriticLoss));
         }
         if !qsum.is_finite() {
             return Err(UpdateError::NonFinite(NonFinite::EStep));
         }
-        let d = &mut self.live.duals;
-        let sol = solve_temperature(
-            &s.q_samples,
+        Ok(())
+    }
+
+    /// The critic's weight gradients (by parameter blocks), clipping and one Adam step.
+    fn critic_step<P: Parallel>(
+        &mut self,
+        par: &P,
+        stats: &mut UpdateStats,
+    ) -> Result<(), UpdateError> {
+        let chunks = &self.chunks;
+        let batch = &self.batch;
+        let obs: [&[[f32; OBS]]; C] = core::array::from_fn(|c| &batch[c].obs[0][..]);
+        let act: [&[[f32; ACT]]; C] = core::array::from_fn(|c| &batch[c].action[0][..]);
+        let h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.h1[..]);
+        let h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &chunks[c].ctape.h2[..]);
+        let d_h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_h1[..]);
+        let d_h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_h2[..]);
+        let dq: [&[[f32; 1]]; C] = core::array::from_fn(|c| &chunks[c].dq[..]);
+        let inputs = CriticGradInputs {
+            obs: &obs,
+            act: &act,
+            h1: &h1,
+            h2: &h2,
+            d_h1: &d_h1,
+            d_h2: &d_h2,
+            dq: &dq,
+        };
+        let mut parts: heapless::Vec<_, { crate::actor::MAX_PARTS }> = self
+            .grads
+            .critic
+            .grad_parts(block_rows(QH1))
+            .into_iter()
+            .map(|p| (p, 0f64))
+            .collect();
+        par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
+        let norm = libm::sqrt(parts.iter().map(|(_, sq)| *sq).sum::<f64>()) as f32;
+        drop(parts);
+        stats.critic_grad_norm = norm;
+        if !norm.is_finite() {
+            return Err(UpdateError::NonFinite(NonFinite::CriticGradients));
+        }
+        if norm > self.cfg.critic_clip {
+            self.grads.critic.scale(self.cfg.critic_clip / norm);
+        }
+        let l = &mut self.live;
+        adam_step(
+            &AdamConfig::with_lr(self.cfg.critic_lr),
+            &mut l.critic_opt,
+            &mut l.critic,
+            &self.grads.critic,
+            &mut l.critic_m,
+            &mut l.critic_v,
+        );
+        Ok(())
+    }
+
+    /// Temperatures, weights and the per-state sample statistics of the M-step.
+    fn e_step<P: Parallel>(&mut self, par: &P, stats: &mut UpdateStats) -> Result<(), UpdateError> {
+        let cfg = self.cfg;
+        let sol = solve_temperature_with(
             cfg.eps_eta,
-            d.eta,
+            self.live.duals.eta,
             cfg.estep_tol,
             cfg.estep_max_iter,
+            &mut |eta| dual_sums(par, &mut self.chunks, eta, false),
         );
         if !sol.eta.is_finite() || sol.eta <= 0.0 {
             return Err(UpdateError::NonFinite(NonFinite::EStep));
         }
-        d.eta = sol.eta;
-        let kl = weights(&s.q_samples, sol.eta, &mut s.weights);
-        stats.q_mean = (qsum / (B * M) as f64) as f32;
-        stats.q_min = qmin;
-        stats.q_max = qmax;
+        self.live.duals.eta = sol.eta;
         stats.eta = sol.eta;
-        stats.estep_kl = kl as f32;
         stats.estep_iterations = sol.iterations;
+        let eta_pen = if cfg.action_penalization {
+            let pen = solve_temperature_with(
+                cfg.eps_penalty,
+                self.live.duals.eta_penalty,
+                cfg.estep_tol,
+                cfg.estep_max_iter,
+                &mut |eta| dual_sums(par, &mut self.chunks, eta, true),
+            );
+            if !pen.eta.is_finite() || pen.eta <= 0.0 {
+                return Err(UpdateError::NonFinite(NonFinite::EStep));
+            }
+            self.live.duals.eta_penalty = pen.eta;
+            stats.eta_penalty = pen.eta;
+            Some(pen.eta)
+        } else {
+            None
+        };
+        par.for_each(&mut self.chunks, &|_, ch| {
+            weigh_samples(ch, sol.eta, eta_pen)
+        });
+        let mut kl = 0f64;
+        for ch in &self.chunks {
+            for n in 0..BC {
+                kl += ch.estep_kl[n] as f64;
+            }
+        }
+        stats.estep_kl = (kl / Self::B as f64) as f32;
         Ok(())
     }
 
-    /// One M-step iteration: actor gradient step and multiplier step.
-    fn m_step(&mut self, stats: &mut UpdateStats) -> Result<(), UpdateError> {
-        let (s, batch, cfg) = (&mut self.s, &self.batch, &self.cfg);
-        let live = &mut self.live;
-        live.actor
-            .forward(&batch.obs, &mut s.atape, &mut s.mean, &mut s.chol);
-        let alpha_mean = live.duals.alpha_mean();
-        let alpha_cov = live.duals.alpha_cov();
-        let inv_b = 1.0 / B as f32;
-        let c_mean = alpha_mean.map(|a| a * inv_b);
-        let c_cov = alpha_cov.map(|a| a * inv_b);
+    /// One M-step iteration: the actor's gradient (rows, then parameter blocks), clipping,
+    /// one Adam step, then one step of the multipliers.
+    fn m_step<P: Parallel>(&mut self, par: &P, stats: &mut UpdateStats) -> Result<(), UpdateError> {
+        let cfg = self.cfg;
+        self.live.actor.transpose_into(&mut self.grads.at);
+        let (d, actor, at, batch) = (
+            &self.live.duals,
+            &self.live.actor,
+            &self.grads.at,
+            &self.batch,
+        );
+        let inv_b = 1.0 / Self::B as f32;
+        let c_mean = d.alpha_mean().map(|a| a * inv_b);
+        let c_cov = d.alpha_cov().map(|a| a * inv_b);
+        par.for_each(&mut self.chunks, &|c, ch| {
+            let states = if cfg.shared_samples {
+                &batch[c].next_obs[0]
+            } else {
+                &batch[c].obs[0]
+            };
+            actor.forward(states, &mut ch.atape, &mut ch.mean, &mut ch.chol);
+            for n in 0..BC {
+                ch.terms[n] = state_gradient(
+                    &ch.old[n],
+                    &ch.mean[n],
+                    &ch.chol[n],
+                    &ch.stats[n],
+                    inv_b,
+                    &c_mean,
+                    &c_cov,
+                    cfg.std_floor,
+                    &mut ch.d_mean[n],
+                    &mut ch.d_chol[n],
+                );
+            }
+            actor.backprop(&mut ch.atape, &ch.d_mean, &ch.d_chol, at);
+        });
         let (mut kl_mean, mut kl_cov) = ([0f32; ACT], [0f32; ACT]);
         let mut nll = 0f32;
         let (mut mu_sum, mut mu_abs, mut sd_sum) = (0f32, 0f32, 0f32);
         let (mut sd_min, mut sd_max) = (f32::INFINITY, 0f32);
-        for n in 0..B {
-            let old = &s.old[n];
-            let new = Gaussian::from_head(&s.mean[n], &s.chol[n], cfg.std_floor);
-            let pi_mean = Gaussian {
-                mu: new.mu,
-                l: old.l,
-            };
-            let pi_cov = Gaussian {
-                mu: old.mu,
-                l: new.l,
-            };
-            let mut g = GaussianGrad::ZERO;
-            for j in 0..M {
-                let w = s.weights[n][j];
-                let a = &s.samples[j][n];
-                let mut gm = GaussianGrad::ZERO;
-                let lp_m = pi_mean.log_prob_grad(a, -w * inv_b, &mut gm);
-                let mut gc = GaussianGrad::ZERO;
-                let lp_c = pi_cov.log_prob_grad(a, -w * inv_b, &mut gc);
-                nll -= w * (lp_m + lp_c) * inv_b;
-                // Stop-gradients: pi_mean's covariance and pi_cov's mean are the old ones.
+        for ch in &self.chunks {
+            for t in &ch.terms {
                 for k in 0..ACT {
-                    g.mu[k] += gm.mu[k];
+                    kl_mean[k] += t.kl_mean[k] * inv_b;
+                    kl_cov[k] += t.kl_cov[k] * inv_b;
+                    mu_sum += t.mu[k];
+                    mu_abs += t.mu[k].abs();
+                    sd_sum += t.std[k];
+                    sd_min = sd_min.min(t.std[k]);
+                    sd_max = sd_max.max(t.std[k]);
                 }
-                add_l(&mut g, &gc);
-            }
-            let mut gk = GaussianGrad::ZERO;
-            let km = kl_per_dim_grad(old, &pi_mean, &c_mean, &[0.0; ACT], &mut gk);
-            for k in 0..ACT {
-                g.mu[k] += gk.mu[k];
-            }
-            let mut gk = GaussianGrad::ZERO;
-            let kc = kl_per_dim_grad(old, &pi_cov, &[0.0; ACT], &c_cov, &mut gk);
-            add_l(&mut g, &gk);
-            for k in 0..ACT {
-                kl_mean[k] += km.mean[k] * inv_b;
-                kl_cov[k] += kc.cov[k] * inv_b;
-            }
-            head_backward(&s.chol[n], &g, &mut s.d_mean[n], &mut s.d_chol[n]);
-            let sd = new.std_devs();
-            for k in 0..ACT {
-                mu_sum += new.mu[k];
-                mu_abs += new.mu[k].abs();
-                sd_sum += sd[k];
-                sd_min = sd_min.min(sd[k]);
-                sd_max = sd_max.max(sd[k]);
+                nll += t.nll;
             }
         }
-        live.actor.backward(
-            &batch.obs,
-            &mut s.atape,
-            &s.d_mean,
-            &s.d_chol,
-            &mut s.actor_grad,
-        );
-        let norm = clip_global_norm(&mut s.actor_grad, cfg.actor_clip);
+        let norm = self.actor_gradient(par);
         let (km_tot, kc_tot): (f32, f32) = (kl_mean.iter().sum(), kl_cov.iter().sum());
         if !(norm.is_finite() && nll.is_finite() && km_tot.is_finite() && kc_tot.is_finite()) {
             return Err(UpdateError::NonFinite(NonFinite::ActorGradients));
         }
-        let acfg = AdamConfig::with_lr(cfg.actor_lr);
+        if norm > cfg.actor_clip {
+            self.grads.actor.scale(cfg.actor_clip / norm);
+        }
+        let l = &mut self.live;
         adam_step(
-            &acfg,
-            &mut live.actor_opt,
-            &mut live.actor,
-            &s.actor_grad,
-            &mut live.actor_m,
-            &mut live.actor_v,
+            &AdamConfig::with_lr(cfg.actor_lr),
+            &mut l.actor_opt,
+            &mut l.actor,
+            &self.grads.actor,
+            &mut l.actor_m,
+            &mut l.actor_v,
         );
+        update_multipliers(&mut l.duals, &cfg, &kl_mean, &kl_cov);
 
-        // Multipliers: d/d alpha of alpha (eps - KL) is eps - KL; through alpha = exp(raw) it is
-        // scaled by alpha. Without per-dimension KL every entry sees the total.
-        let d = &mut live.duals;
-        let mut g_mean = [0f32; ACT];
-        let mut g_cov = [0f32; ACT];
-        for k in 0..ACT {
-            let (dm, dc) = if cfg.per_dim_kl {
-                (
-                    cfg.eps_mean / ACT as f32 - kl_mean[k],
-                    cfg.eps_cov / ACT as f32 - kl_cov[k],
-                )
-            } else {
-                (cfg.eps_mean - km_tot, cfg.eps_cov - kc_tot)
-            };
-            g_mean[k] = dm * alpha_mean[k];
-            g_cov[k] = dc * alpha_cov[k];
-        }
-        let dcfg = AdamConfig::with_lr(cfg.dual_lr);
-        d.opt.advance(&dcfg);
-        let [m0, v0, m1, v1] = &mut d.moments;
-        d.opt.apply(&dcfg, &mut d.alpha_mean_raw, &g_mean, m0, v0);
-        d.opt.apply(&dcfg, &mut d.alpha_cov_raw, &g_cov, m1, v1);
-        for r in d
-            .alpha_mean_raw
-            .iter_mut()
-            .chain(d.alpha_cov_raw.iter_mut())
-        {
-            *r = r.clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
-        }
-
-        let bd = (B * ACT) as f32;
+        let bd = (Self::B * ACT) as f32;
         stats.kl_mean = km_tot;
         stats.kl_cov = kc_tot;
         stats.kl_mean_rel = km_tot / cfg.eps_mean;
@@ -802,13 +785,273 @@ impl<
         stats.std_max = sd_max;
         Ok(())
     }
+
+    /// The actor's weight gradients by parameter blocks from the chunks' tapes; returns the
+    /// global norm (before clipping).
+    fn actor_gradient<P: Parallel>(&mut self, par: &P) -> f32 {
+        let (chunks, batch, shared) = (&self.chunks, &self.batch, self.cfg.shared_samples);
+        let obs: [&[[f32; OBS]]; C] = core::array::from_fn(|c| {
+            if shared {
+                &batch[c].next_obs[0][..]
+            } else {
+                &batch[c].obs[0][..]
+            }
+        });
+        let h1: [&[[f32; AH1]]; C] = core::array::from_fn(|c| &chunks[c].atape.h1[..]);
+        let h2: [&[[f32; AH2]]; C] = core::array::from_fn(|c| &chunks[c].atape.h2[..]);
+        let d_h1: [&[[f32; AH1]]; C] = core::array::from_fn(|c| &chunks[c].atape.d_h1[..]);
+        let d_h2: [&[[f32; AH2]]; C] = core::array::from_fn(|c| &chunks[c].atape.d_h2[..]);
+        let d_mean: [&[[f32; ACT]]; C] = core::array::from_fn(|c| &chunks[c].d_mean[..]);
+        let d_chol: [&[[f32; TRI]]; C] = core::array::from_fn(|c| &chunks[c].d_chol[..]);
+        let inputs = ActorGradInputs {
+            obs: &obs,
+            h1: &h1,
+            h2: &h2,
+            d_h1: &d_h1,
+            d_h2: &d_h2,
+            d_mean: &d_mean,
+            d_chol: &d_chol,
+        };
+        let mut parts: heapless::Vec<_, { crate::actor::MAX_PARTS }> = self
+            .grads
+            .actor
+            .grad_parts(block_rows(AH1))
+            .into_iter()
+            .map(|p| (p, 0f64))
+            .collect();
+        par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
+        libm::sqrt(parts.iter().map(|(_, sq)| *sq).sum::<f64>()) as f32
+    }
 }
 
-/// `g.l += h.l` (lower triangle).
-fn add_l<const A: usize>(g: &mut GaussianGrad<A>, h: &GaussianGrad<A>) {
-    for j in 0..A {
-        for k in 0..=j {
-            g.l[j][k] += h.l[j][k];
+/// `|a - clip(a, -1, 1)|^2`: how far an action lies outside the actuators' range.
+fn excess<const A: usize>(a: &[f32; A]) -> f32 {
+    let mut s = 0.0;
+    for &x in a {
+        let d = x - x.clamp(-1.0, 1.0);
+        s += d * d;
+    }
+    s
+}
+
+/// The E-step's samples at the chunk's states `obs` and their target-critic values: the
+/// target policy there (kept in `ch.old`), `M` draws per row from the row's own stream.
+#[allow(clippy::too_many_arguments)]
+fn estep_samples<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+>(
+    cfg: &MpoConfig,
+    ta: &Actor<OBS, ACT, TRI, AH1, AH2>,
+    tc: &Critic<OBS, ACT, QH1, QH2>,
+    obs: &[[f32; OBS]; BC],
+    seed: u64,
+    c: usize,
+    ch: &mut Chunk<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, L, M, N>,
+) {
+    ta.forward(obs, &mut ch.atape, &mut ch.mean, &mut ch.chol);
+    tc.state_part(obs, &mut ch.pre1);
+    for n in 0..BC {
+        ch.old[n] = Gaussian::from_head(&ch.mean[n], &ch.chol[n], cfg.std_floor);
+        let mut z = [[0f32; ACT]; M];
+        Rng::for_stream(seed, STREAM_ESTEP, (c * BC + n) as u32).fill_normal(z.as_flattened_mut());
+        for j in 0..M {
+            ch.old[n].transform(&z[j], &mut ch.samples[j][n]);
         }
+    }
+    for j in 0..M {
+        tc.forward_from_state_part(&ch.pre1, &ch.samples[j], &mut ch.ctape, &mut ch.q);
+        for n in 0..BC {
+            ch.q_samples[n][j] = ch.q[n][0];
+        }
+    }
+}
+
+/// The chunk's policy-evaluation targets into `ch.target`: Retrace over the rows'
+/// `sequence_len` transitions (TD(0) expected SARSA when that is 1). Position `k` needs the
+/// target policy and the target critic's state part at `s_{k+1}`; position `k + 1` reuses both
+/// (its state is `s_{k+1}`) for its action's value and importance weight. In shared-samples
+/// mode position 0's samples and values become the E-step's.
+fn targets<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+>(
+    cfg: &MpoConfig,
+    ta: &Actor<OBS, ACT, TRI, AH1, AH2>,
+    tc: &Critic<OBS, ACT, QH1, QH2>,
+    b: &BatchChunk<BC, L, OBS, ACT>,
+    seed: u64,
+    c: usize,
+    ch: &mut Chunk<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, L, M, N>,
+) {
+    let len = cfg.sequence_len as usize;
+    for k in 0..len {
+        if k > 0 {
+            // s_k is the previous position's next state: its target policy and state part
+            // are still in `next_pi` and `pre1`.
+            tc.forward_from_state_part(&ch.pre1, &b.action[k], &mut ch.ctape, &mut ch.q);
+            for n in 0..BC {
+                ch.ret_q[k][n] = ch.q[n][0];
+                ch.ret_log_ratio[k][n] =
+                    ch.next_pi[n].log_prob(&b.action[k][n]) - b.behaviour_log_prob[k][n];
+            }
+        }
+        ta.forward(&b.next_obs[k], &mut ch.atape, &mut ch.mean, &mut ch.chol);
+        tc.state_part(&b.next_obs[k], &mut ch.pre1);
+        for n in 0..BC {
+            ch.next_pi[n] = Gaussian::from_head(&ch.mean[n], &ch.chol[n], cfg.std_floor);
+            let mut z = [[0f32; ACT]; N];
+            Rng::for_stream(seed, STREAM_NEXT + k as u32, (c * BC + n) as u32)
+                .fill_normal(z.as_flattened_mut());
+            for j in 0..N {
+                ch.next_pi[n].transform(&z[j], &mut ch.next_samples[j][n]);
+            }
+        }
+        let mut v = [0f32; BC];
+        for j in 0..N {
+            tc.forward_from_state_part(&ch.pre1, &ch.next_samples[j], &mut ch.ctape, &mut ch.q);
+            for n in 0..BC {
+                v[n] += ch.q[n][0];
+            }
+            if cfg.shared_samples && j < M {
+                for n in 0..BC {
+                    ch.q_samples[n][j] = ch.q[n][0];
+                    ch.samples[j][n] = ch.next_samples[j][n];
+                }
+            }
+        }
+        for n in 0..BC {
+            ch.ret_v[k][n] = v[n] / N as f32;
+        }
+    }
+    if cfg.shared_samples {
+        ch.old = ch.next_pi;
+    }
+    let (mut q, mut v, mut r, mut d, mut lr, mut out) = (
+        [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L],
+    );
+    for n in 0..BC {
+        for k in 0..len {
+            q[k] = ch.ret_q[k][n];
+            v[k] = ch.ret_v[k][n];
+            r[k] = b.reward[k][n];
+            d[k] = b.bootstrap[k][n];
+            lr[k] = ch.ret_log_ratio[k][n];
+        }
+        // The bootstrap multipliers already hold gamma times the discounts.
+        crate::evaluation::retrace(
+            &q[..len],
+            &v[..len],
+            &r[..len],
+            &d[..len],
+            &lr[..len],
+            1.0,
+            &mut out[..len],
+        );
+        ch.target[n] = out[0];
+    }
+}
+
+/// The summed dual rows of every chunk at `eta` (of the penalty objective when `penalty`),
+/// computed by `par` and added in batch order.
+fn dual_sums<
+    P: Parallel,
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+>(
+    par: &P,
+    chunks: &mut [Chunk<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, L, M, N>],
+    eta: f64,
+    penalty: bool,
+) -> DualSums {
+    par.for_each(chunks, &|_, ch| {
+        for n in 0..BC {
+            let row = if penalty {
+                &ch.q_penalty[n]
+            } else {
+                &ch.q_samples[n]
+            };
+            ch.dual[n] = dual_row(row, eta);
+        }
+    });
+    let mut s = DualSums::default();
+    for ch in chunks.iter() {
+        for r in &ch.dual {
+            s.add(r);
+        }
+    }
+    s
+}
+
+/// The chunk's E-step weights at the solved temperatures, folded straight into each state's
+/// [`SampleStats`] (the penalty objective's weights join the task's), and each state's
+/// KL(q || pi_old).
+fn weigh_samples<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+>(
+    ch: &mut Chunk<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, L, M, N>,
+    eta: f32,
+    eta_penalty: Option<f32>,
+) {
+    for n in 0..BC {
+        let mut w = [0f32; M];
+        ch.estep_kl[n] = crate::estep::weights(
+            core::slice::from_ref(&ch.q_samples[n]),
+            eta,
+            core::slice::from_mut(&mut w),
+        ) as f32;
+        if let Some(eta_p) = eta_penalty {
+            let mut wp = [0f32; M];
+            crate::estep::weights(
+                core::slice::from_ref(&ch.q_penalty[n]),
+                eta_p,
+                core::slice::from_mut(&mut wp),
+            );
+            for j in 0..M {
+                w[j] += wp[j];
+            }
+        }
+        let mut st = SampleStats::ZERO;
+        for j in 0..M {
+            st.add(w[j], &ch.samples[j][n], &ch.old[n].mu);
+        }
+        ch.stats[n] = st;
     }
 }

@@ -3,7 +3,9 @@
 //!
 //! The paper's concepts are the modules: [`gaussian`] (the policy's full-covariance
 //! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers),
-//! [`adam`], [`replay`] and [`rng`]. Every routine writes into buffers owned by the caller,
+//! [`adam`], [`replay`] and [`rng`]; the algorithm's steps are [`evaluation`] (policy
+//! evaluation targets), [`estep`] and [`mstep`], composed by [`learner`], which spreads its
+//! work over threads through [`parallel`] with the same bits for any thread count. Every routine writes into buffers owned by the caller,
 //! so nothing is allocated after construction; big state is created zeroed in place (on the
 //! host with `bytemuck::zeroed_box`, on firmware in a static) and initialised with `init`.
 //!
@@ -15,7 +17,9 @@
 //! `TRI = ACT (ACT + 1) / 2` Cholesky entries, `H1`/`H2` hidden widths.
 #![no_std]
 #![deny(missing_docs)]
-#![forbid(unsafe_code)]
+// The one exception is `linear::mul_add`, which calls the FMA instruction when the build
+// enables it (a register-only intrinsic).
+#![deny(unsafe_code)]
 #![allow(clippy::needless_range_loop)]
 
 pub mod actor;
@@ -34,6 +38,10 @@ pub mod gaussian;
 #[cfg(feature = "train")]
 pub mod learner;
 pub mod linear;
+#[cfg(feature = "train")]
+pub mod mstep;
+#[cfg(feature = "train")]
+pub mod parallel;
 pub mod params;
 #[cfg(feature = "train")]
 pub mod replay;

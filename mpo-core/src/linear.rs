@@ -2,31 +2,67 @@
 //!
 //! Weights are stored input-major (`w[i][o]`), so every kernel is an axpy over outputs that the
 //! compiler vectorises without reassociating a sum. Every output is accumulated in the same
-//! order on every path (initial value, then inputs in ascending order), which is why a batch
-//! forward gives the same bits as a single-state forward, and why no target CPU changes a
-//! result (Rust never contracts `a * b + c` into an FMA).
+//! order on every path (initial value, then inputs in ascending order, one fused multiply-add
+//! each: [`mul_add`]), which is why a batch forward gives the same bits as a single-state
+//! forward, and why no target CPU changes a result: a fused multiply-add is rounded once,
+//! exactly as IEEE 754 defines it, whether an FMA instruction or software computes it.
 //!
 //! FLOPs: forward `2 B I O`; backward `2 B I O` for the weight gradient plus `2 B I O` for the
 //! input gradient when it is asked for.
 //!
 //! Kernels: [`accumulate`] (forward, and input gradients through transposed weights) keeps a
-//! 4-sample x 16-output tile in registers; [`weight_grad`] a 4-input x 16-output tile.
+//! 4-sample x 24-output tile in registers (twelve AVX2 accumulators, enough to cover the
+//! latency of two FMA pipes, plus three weight vectors and a broadcast: all 16 registers);
+//! what is left of the outputs runs in strips of 16 and 8, and narrow layers (fewer than 8
+//! outputs: the policy heads) use an 8-sample tile over the outputs there are.
+//! [`weight_grad_chunks`] keeps a 4-input x 24-output tile and sums over samples in
+//! ascending order across a list of batch chunks, so the gradient of a batch held in chunks
+//! has the same bits as that of one contiguous batch.
 
 use bytemuck::Zeroable;
 
 use crate::params::Params;
 use crate::rng::Rng;
 
-/// Output tile width of the batch kernels (two AVX2 registers).
-const TILE_O: usize = 16;
-/// Samples per tile of the batch kernels.
+/// Floats per AVX2 register: the kernels' unit of output width.
+const LANES: usize = 8;
+/// Samples per tile of the batch forward kernel: 4 x 3 accumulators, 3 weight registers and
+/// one broadcast fill the 16 AVX2 registers (measured best of 4x16, 5x16, 6x16, 8x8, 3x32,
+/// 2x32 on this machine).
 const TILE_N: usize = 4;
-/// Input rows per tile of the weight-gradient kernel.
+/// Samples per tile of the narrow-output kernel.
+const TILE_N_NARROW: usize = 8;
+/// Input rows per tile of the weight-gradient kernel (same register budget).
 #[cfg(feature = "train")]
 const TILE_I: usize = 4;
 /// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
-/// enough to hide the add latency.
+/// enough to hide the FMA latency.
 const CHUNK_1: usize = 64;
+
+/// `a * b + c` with one rounding (IEEE 754 fusedMultiplyAdd).
+///
+/// On x86-64 builds with the `fma` target feature (the workspace's x86-64-v3 host target) this
+/// is the FMA instruction, which the compiler vectorises; elsewhere (the baseline target of the
+/// freestanding binaries, microcontrollers) it is `libm::fmaf`, correctly rounded in software
+/// or with the instruction when the CPU has one. Both give the same bits for the same inputs.
+#[inline(always)]
+pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+    {
+        use core::arch::x86_64::{_mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss};
+        // SAFETY: the `fma` target feature is enabled for the whole build (checked by the cfg
+        // above), so every CPU this binary may run on has the instruction; the intrinsics only
+        // touch registers.
+        #[allow(unsafe_code)]
+        unsafe {
+            _mm_cvtss_f32(_mm_fmadd_ss(_mm_set_ss(a), _mm_set_ss(b), _mm_set_ss(c)))
+        }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
+    {
+        libm::fmaf(a, b, c)
+    }
+}
 
 /// A dense layer `y = b + x W` with `I` inputs and `O` outputs.
 #[derive(Clone, Zeroable)]
@@ -54,6 +90,10 @@ impl<const I: usize, const O: usize> Params for Linear<I, O> {
             _ => panic!("Linear has 2 tensors, asked for {k}"),
         }
     }
+    fn visit_mut<'a>(&'a mut self, f: &mut dyn FnMut(&'a mut [f32])) {
+        f(self.w.as_flattened_mut());
+        f(&mut self.b);
+    }
 }
 
 impl<const I: usize, const O: usize> Linear<I, O> {
@@ -71,47 +111,52 @@ impl<const I: usize, const O: usize> Linear<I, O> {
 
     /// `y = b + x W` for every row of `x`.
     pub fn forward(&self, x: &[[f32; I]], y: &mut [[f32; O]]) {
-        for row in y.iter_mut() {
-            *row = self.b;
-        }
-        accumulate(x, &self.w, y);
+        kernel::<I, O, false>(x, &self.w, Start::Row(&self.b), y);
+    }
+
+    /// `y = max(b + x W, 0)` for every row of `x` (the ReLU fused into the kernel).
+    pub fn forward_relu(&self, x: &[[f32; I]], y: &mut [[f32; O]]) {
+        kernel::<I, O, true>(x, &self.w, Start::Row(&self.b), y);
     }
 
     #[cfg(feature = "train")]
-    /// As [`Self::backward`] with the input gradient computed through a transposed copy of
-    /// the weights in `wt` (scratch): the fast path for wide layers, where it turns the input
-    /// gradient into the same register-tiled kernel as the forward pass.
-    pub fn backward_wide(
-        &self,
-        x: &[[f32; I]],
-        dy: &[[f32; O]],
-        grad: &mut Linear<I, O>,
-        dx: &mut [[f32; I]],
-        wt: &mut [[f32; I]; O],
-    ) {
+    /// Weight and bias gradients of `sum_n dy[n] . y[n]`, written into `grad` (overwriting
+    /// it).
+    pub fn backward(&self, x: &[[f32; I]], dy: &[[f32; O]], grad: &mut Linear<I, O>) {
         weight_grad(x, dy, &mut grad.w);
-        bias_grad(dy, &mut grad.b);
+        bias_grad_chunks(&[dy], &mut grad.b);
+    }
+
+    #[cfg(feature = "train")]
+    /// The input gradient `dx = dy W^T`, through a transposed copy of the weights in `wt`
+    /// (filled here; see [`transpose`]) so it runs on the forward kernel.
+    pub fn input_grad(&self, dy: &[[f32; O]], dx: &mut [[f32; I]], wt: &mut [[f32; I]; O]) {
         transpose(&self.w, wt);
         for row in dx.iter_mut() {
             row.fill(0.0);
         }
         accumulate(dy, wt, dx);
     }
+}
 
-    #[cfg(feature = "train")]
-    /// Weight and bias gradients of `sum_n dy[n] . y[n]`, written into `grad` (overwriting
-    /// it), and optionally the input gradient `dx = dy W^T`.
-    pub fn backward(
-        &self,
-        x: &[[f32; I]],
-        dy: &[[f32; O]],
-        grad: &mut Linear<I, O>,
-        dx: Option<&mut [[f32; I]]>,
-    ) {
-        weight_grad(x, dy, &mut grad.w);
-        bias_grad(dy, &mut grad.b);
-        if let Some(dx) = dx {
-            input_grad(&self.w, dy, dx);
+/// Where each output's sum starts.
+#[derive(Clone, Copy)]
+pub enum Start<'a, const O: usize> {
+    /// From `y` itself (accumulate into it).
+    Y,
+    /// From one row for every sample (a bias).
+    Row(&'a [f32; O]),
+    /// From row `n` of the given rows for sample `n` (a precomputed partial sum).
+    Rows(&'a [[f32; O]]),
+}
+
+impl<const O: usize> Start<'_, O> {
+    #[inline(always)]
+    fn get(&self, y: &[[f32; O]], n: usize, o: usize) -> f32 {
+        match self {
+            Self::Y => y[n][o],
+            Self::Row(b) => b[o],
+            Self::Rows(r) => r[n][o],
         }
     }
 }
@@ -122,146 +167,336 @@ pub fn accumulate<const I: usize, const O: usize>(
     w: &[[f32; O]; I],
     y: &mut [[f32; O]],
 ) {
+    kernel::<I, O, false>(x, w, Start::Y, y);
+}
+
+/// `y[n] = start[n] + x[n] W` for every row (each output: the start value, then one fused
+/// multiply-add per input in ascending order), passed through a ReLU when `RELU`. Fusing the
+/// start and the ReLU into the tiles saves two passes over `y`.
+pub fn kernel<const I: usize, const O: usize, const RELU: bool>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+) {
     assert_eq!(x.len(), y.len(), "accumulate: batch sizes differ");
-    let n_full = x.len() / TILE_N * TILE_N;
-    let (x_full, x_rest) = x.split_at(n_full);
-    let (y_full, y_rest) = y.split_at_mut(n_full);
-    // Output strips outermost: one strip of weights (I x 16 floats, 16 KiB at I = 256) stays
-    // in L1 while every sample tile passes over it, instead of streaming all of W from L2
-    // once per sample tile.
-    let o_full = O / TILE_O * TILE_O;
-    let mut o0 = 0;
-    while o0 < o_full {
-        for (xs, ys) in x_full
-            .chunks_exact(TILE_N)
-            .zip(y_full.chunks_exact_mut(TILE_N))
-        {
-            accumulate_tile(xs, w, ys, o0);
-        }
-        o0 += TILE_O;
+    if let Start::Rows(r) = start {
+        assert_eq!(r.len(), y.len(), "accumulate: start rows differ");
     }
-    if o_full < O {
-        for (xs, ys) in x_full.iter().zip(y_full.iter_mut()) {
-            for i in 0..I {
-                let xi = xs[i];
-                for o in o_full..O {
-                    ys[o] += xi * w[i][o];
+    if x.len() == 1 {
+        accumulate_one::<I, O, RELU>(&x[0], w, start, &mut y[0]);
+        return;
+    }
+    // Output strips outermost: one strip of weights (I x 24 floats) is reused by every sample
+    // tile while it is in cache. Strips of 24 outputs, then one of 16 and one of 8 for what is
+    // left, then the narrow kernel for fewer than 8.
+    let mut o0 = 0;
+    while o0 + 3 * LANES <= O {
+        accumulate_strip::<I, O, 3, RELU>(x, w, start, y, o0);
+        o0 += 3 * LANES;
+    }
+    if o0 + 2 * LANES <= O {
+        accumulate_strip::<I, O, 2, RELU>(x, w, start, y, o0);
+        o0 += 2 * LANES;
+    }
+    if o0 + LANES <= O {
+        accumulate_strip::<I, O, 1, RELU>(x, w, start, y, o0);
+        o0 += LANES;
+    }
+    if o0 < O {
+        accumulate_narrow::<I, O, RELU>(x, w, start, y, o0);
+    }
+}
+
+/// Outputs `o0 .. o0 + 8 K` of every row: tiles of 4 samples, then single rows.
+#[inline(always)]
+fn accumulate_strip<const I: usize, const O: usize, const K: usize, const RELU: bool>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+    o0: usize,
+) {
+    let mut n0 = 0;
+    while n0 + TILE_N <= x.len() {
+        let xs: &[[f32; I]; TILE_N] = x[n0..n0 + TILE_N].try_into().unwrap();
+        accumulate_tile::<I, O, TILE_N, K, RELU>(xs, w, start, y, n0, o0);
+        n0 += TILE_N;
+    }
+    while n0 < x.len() {
+        let xs: &[[f32; I]; 1] = x[n0..n0 + 1].try_into().unwrap();
+        accumulate_tile::<I, O, 1, K, RELU>(xs, w, start, y, n0, o0);
+        n0 += 1;
+    }
+}
+
+/// `TN` samples from `n0` by `8 K` outputs from `o0`: the accumulators (`TN K` vectors) and
+/// the `K` weight vectors of the current input stay in registers while the inputs stream.
+/// Fixed-size rows, so the compiler checks bounds once per tile, not per input.
+#[inline(always)]
+fn accumulate_tile<
+    const I: usize,
+    const O: usize,
+    const TN: usize,
+    const K: usize,
+    const RELU: bool,
+>(
+    x: &[[f32; I]; TN],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+    n0: usize,
+    o0: usize,
+) {
+    let mut acc = [[[0f32; LANES]; K]; TN];
+    for s in 0..TN {
+        for k in 0..K {
+            for l in 0..LANES {
+                acc[s][k][l] = start.get(y, n0 + s, o0 + LANES * k + l);
+            }
+        }
+    }
+    for i in 0..I {
+        let mut wr = [[0f32; LANES]; K];
+        for k in 0..K {
+            wr[k] = w[i][o0 + LANES * k..o0 + LANES * (k + 1)]
+                .try_into()
+                .unwrap();
+        }
+        for s in 0..TN {
+            let xs = x[s][i];
+            for k in 0..K {
+                for l in 0..LANES {
+                    acc[s][k][l] = mul_add(xs, wr[k][l], acc[s][k][l]);
                 }
             }
         }
     }
-    for (xr, yr) in x_rest.iter().zip(y_rest) {
-        accumulate_one(xr, w, yr);
-    }
-}
-
-/// Four samples by sixteen outputs from `o0`: 4 x 16 accumulators stay in registers while
-/// the inputs stream.
-#[inline(always)]
-fn accumulate_tile<const I: usize, const O: usize>(
-    x: &[[f32; I]],
-    w: &[[f32; O]; I],
-    y: &mut [[f32; O]],
-    o0: usize,
-) {
-    let mut acc = [[0f32; TILE_O]; TILE_N];
-    for s in 0..TILE_N {
-        acc[s].copy_from_slice(&y[s][o0..o0 + TILE_O]);
-    }
-    for i in 0..I {
-        let wr: &[f32; TILE_O] = w[i][o0..o0 + TILE_O].try_into().unwrap();
-        for s in 0..TILE_N {
-            let xs = x[s][i];
-            for l in 0..TILE_O {
-                acc[s][l] += xs * wr[l];
+    let ys: &mut [[f32; O]; TN] = (&mut y[n0..n0 + TN]).try_into().unwrap();
+    for s in 0..TN {
+        for k in 0..K {
+            for l in 0..LANES {
+                let v = acc[s][k][l];
+                ys[s][o0 + LANES * k + l] = if RELU { v.max(0.0) } else { v };
             }
         }
     }
-    for s in 0..TILE_N {
-        y[s][o0..o0 + TILE_O].copy_from_slice(&acc[s]);
+}
+
+/// Outputs `o0..O` (fewer than 8) for every row: eight samples at a time keep eight
+/// independent accumulator vectors busy, which a single narrow row could not.
+fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+    o0: usize,
+) {
+    let width = O - o0;
+    let mut n0 = 0;
+    while n0 < x.len() {
+        let tn = TILE_N_NARROW.min(x.len() - n0);
+        let mut acc = [[0f32; LANES]; TILE_N_NARROW];
+        for s in 0..tn {
+            for l in 0..width {
+                acc[s][l] = start.get(y, n0 + s, o0 + l);
+            }
+        }
+        for i in 0..I {
+            let wr = &w[i][o0..];
+            for s in 0..tn {
+                let xs = x[n0 + s][i];
+                for (a, wv) in acc[s][..width].iter_mut().zip(wr) {
+                    *a = mul_add(xs, *wv, *a);
+                }
+            }
+        }
+        for s in 0..tn {
+            for l in 0..width {
+                let v = acc[s][l];
+                y[n0 + s][o0 + l] = if RELU { v.max(0.0) } else { v };
+            }
+        }
+        n0 += tn;
     }
 }
 
-/// One sample: output chunks of 32 accumulators, inputs streaming.
+/// One sample: output chunks of 64 accumulators (eight registers, enough to hide the FMA
+/// latency), inputs streaming; the rest of the outputs in chunks of 8, then singly.
 #[inline(always)]
-fn accumulate_one<const I: usize, const O: usize>(
+fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
     x: &[f32; I],
     w: &[[f32; O]; I],
+    start: Start<'_, O>,
     y: &mut [f32; O],
 ) {
-    let o_full = O / CHUNK_1 * CHUNK_1;
+    let ys = core::slice::from_ref(y);
+    let mut init = [0f32; O];
+    for o in 0..O {
+        init[o] = start.get(ys, 0, o);
+    }
     let mut o0 = 0;
-    while o0 < o_full {
-        let mut acc = [0f32; CHUNK_1];
-        acc.copy_from_slice(&y[o0..o0 + CHUNK_1]);
+    while o0 + CHUNK_1 <= O {
+        let mut acc: [f32; CHUNK_1] = init[o0..o0 + CHUNK_1].try_into().unwrap();
         for i in 0..I {
             let wr: &[f32; CHUNK_1] = w[i][o0..o0 + CHUNK_1].try_into().unwrap();
             let xi = x[i];
             for l in 0..CHUNK_1 {
-                acc[l] += xi * wr[l];
+                acc[l] = mul_add(xi, wr[l], acc[l]);
             }
         }
-        y[o0..o0 + CHUNK_1].copy_from_slice(&acc);
+        init[o0..o0 + CHUNK_1].copy_from_slice(&acc);
         o0 += CHUNK_1;
     }
-    if o_full < O {
+    if o0 < O {
+        // The rest of the outputs (a narrow head) together: one chain per output.
         for i in 0..I {
             let xi = x[i];
-            for o in o_full..O {
-                y[o] += xi * w[i][o];
+            for o in o0..O {
+                init[o] = mul_add(xi, w[i][o], init[o]);
             }
         }
+    }
+    for o in 0..O {
+        y[o] = if RELU { init[o].max(0.0) } else { init[o] };
     }
 }
 
 #[cfg(feature = "train")]
-/// `gw[i][o] = sum_n x[n][i] dy[n][o]`, summed in ascending sample order.
+/// `gw[i][o] = sum_n x[n][i] dy[n][o]`, summed in ascending sample order (overwrites `gw`).
 pub fn weight_grad<const I: usize, const O: usize>(
     x: &[[f32; I]],
     dy: &[[f32; O]],
     gw: &mut [[f32; O]; I],
 ) {
-    assert_eq!(x.len(), dy.len(), "weight_grad: batch sizes differ");
-    let o_full = O / TILE_O * TILE_O;
-    let i_full = I / TILE_I * TILE_I;
-    let mut i0 = 0;
-    while i0 < i_full {
-        let mut o0 = 0;
-        while o0 < o_full {
-            let mut acc = [[0f32; TILE_O]; TILE_I];
-            for (xn, dyn_) in x.iter().zip(dy) {
-                let d: &[f32; TILE_O] = dyn_[o0..o0 + TILE_O].try_into().unwrap();
-                for k in 0..TILE_I {
-                    let xk = xn[i0 + k];
-                    for l in 0..TILE_O {
-                        acc[k][l] += xk * d[l];
+    weight_grad_chunks(&[x], &[dy], 0, gw);
+}
+
+#[cfg(feature = "train")]
+/// Rows `i0 .. i0 + gw.len()` of the weight gradient of a batch held in chunks:
+/// `gw[i - i0][o] = sum_c sum_n x[c][n][i] dy[c][n][o]`, chunks in order and samples in
+/// ascending order within each, so the bits depend only on the batch, not on how it is
+/// chunked or which rows are computed together. Overwrites `gw`.
+pub fn weight_grad_chunks<const I: usize, const O: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i0: usize,
+    gw: &mut [[f32; O]],
+) {
+    assert_eq!(x.len(), dy.len(), "weight_grad: chunk counts differ");
+    for (xc, dc) in x.iter().zip(dy) {
+        assert_eq!(xc.len(), dc.len(), "weight_grad: batch sizes differ");
+    }
+    assert!(i0 + gw.len() <= I, "weight_grad: rows out of range");
+    let mut o0 = 0;
+    while o0 + 3 * LANES <= O {
+        weight_grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
+        o0 += 3 * LANES;
+    }
+    if o0 + 2 * LANES <= O {
+        weight_grad_strip::<I, O, 2>(x, dy, i0, gw, o0);
+        o0 += 2 * LANES;
+    }
+    if o0 + LANES <= O {
+        weight_grad_strip::<I, O, 1>(x, dy, i0, gw, o0);
+        o0 += LANES;
+    }
+    if o0 < O {
+        weight_grad_narrow(x, dy, i0, gw, o0);
+    }
+}
+
+#[cfg(feature = "train")]
+/// Columns `o0 .. o0 + 8 K` of [`weight_grad_chunks`]: tiles of 4 input rows, then single
+/// rows.
+#[inline(always)]
+fn weight_grad_strip<const I: usize, const O: usize, const K: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i0: usize,
+    gw: &mut [[f32; O]],
+    o0: usize,
+) {
+    let rows = gw.len();
+    let mut r = 0;
+    while r + TILE_I <= rows {
+        let acc = weight_grad_tile::<I, O, TILE_I, K>(x, dy, i0 + r, o0);
+        for t in 0..TILE_I {
+            for k in 0..K {
+                gw[r + t][o0 + LANES * k..o0 + LANES * (k + 1)].copy_from_slice(&acc[t][k]);
+            }
+        }
+        r += TILE_I;
+    }
+    while r < rows {
+        let acc = weight_grad_tile::<I, O, 1, K>(x, dy, i0 + r, o0);
+        for k in 0..K {
+            gw[r][o0 + LANES * k..o0 + LANES * (k + 1)].copy_from_slice(&acc[0][k]);
+        }
+        r += 1;
+    }
+}
+
+#[cfg(feature = "train")]
+/// `TI` input rows from `i` by `8 K` outputs from `o0` of the chunked weight gradient.
+#[inline(always)]
+fn weight_grad_tile<const I: usize, const O: usize, const TI: usize, const K: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i: usize,
+    o0: usize,
+) -> [[[f32; LANES]; K]; TI] {
+    let mut acc = [[[0f32; LANES]; K]; TI];
+    for (xc, dc) in x.iter().zip(dy) {
+        for (xn, dn) in xc.iter().zip(dc.iter()) {
+            let mut d = [[0f32; LANES]; K];
+            for k in 0..K {
+                d[k] = dn[o0 + LANES * k..o0 + LANES * (k + 1)].try_into().unwrap();
+            }
+            let xs: &[f32; TI] = xn[i..i + TI].try_into().unwrap();
+            for t in 0..TI {
+                let xv = xs[t];
+                for k in 0..K {
+                    for l in 0..LANES {
+                        acc[t][k][l] = mul_add(xv, d[k][l], acc[t][k][l]);
                     }
                 }
             }
-            for k in 0..TILE_I {
-                gw[i0 + k][o0..o0 + TILE_O].copy_from_slice(&acc[k]);
-            }
-            o0 += TILE_O;
         }
-        i0 += TILE_I;
     }
-    // Rows past the last full input tile, and columns past the last full output tile: the
-    // same per-element order (samples ascending), samples in the outer loop so each input row
-    // is read once and the small block of gradients stays in L1.
-    let rest = |i: usize| if i < i_full { o_full } else { 0 };
-    for i in 0..I {
-        gw[i][rest(i)..].fill(0.0);
-    }
-    if o_full < O || i_full < I {
-        for (xn, dyn_) in x.iter().zip(dy) {
-            for i in 0..I {
-                let xi = xn[i];
-                let o_start = rest(i);
-                for (g, d) in gw[i][o_start..].iter_mut().zip(&dyn_[o_start..]) {
-                    *g += xi * d;
+    acc
+}
+
+#[cfg(feature = "train")]
+/// Columns `o0..O` (fewer than 8) of [`weight_grad_chunks`]: eight input rows at a time.
+fn weight_grad_narrow<const I: usize, const O: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i0: usize,
+    gw: &mut [[f32; O]],
+    o0: usize,
+) {
+    const TI: usize = 8;
+    let width = O - o0;
+    let mut r = 0;
+    while r < gw.len() {
+        let ti = TI.min(gw.len() - r);
+        let mut acc = [[0f32; LANES]; TI];
+        for (xc, dc) in x.iter().zip(dy) {
+            for (xn, dn) in xc.iter().zip(dc.iter()) {
+                let d = &dn[o0..];
+                for k in 0..ti {
+                    let xk = xn[i0 + r + k];
+                    for (a, dv) in acc[k][..width].iter_mut().zip(d) {
+                        *a = mul_add(xk, *dv, *a);
+                    }
                 }
             }
         }
+        for k in 0..ti {
+            gw[r + k][o0..].copy_from_slice(&acc[k][..width]);
+        }
+        r += ti;
     }
 }
 
@@ -287,33 +522,14 @@ pub fn transpose<const I: usize, const O: usize>(w: &[[f32; O]; I], wt: &mut [[f
 }
 
 #[cfg(feature = "train")]
-/// `gb[o] = sum_n dy[n][o]`, in ascending sample order.
-pub fn bias_grad<const O: usize>(dy: &[[f32; O]], gb: &mut [f32; O]) {
+/// `gb[o] = sum_c sum_n dy[c][n][o]`, chunks in order, samples ascending (overwrites `gb`).
+pub fn bias_grad_chunks<const O: usize>(dy: &[&[[f32; O]]], gb: &mut [f32; O]) {
     gb.fill(0.0);
-    for d in dy {
-        for o in 0..O {
-            gb[o] += d[o];
-        }
-    }
-}
-
-#[cfg(feature = "train")]
-/// `dx[n][i] = sum_o w[i][o] dy[n][o]`, one accumulator per element in ascending `o`: the
-/// path for narrow layers (the heads). Wide layers use [`Linear::backward_wide`], which turns
-/// this product into the register-tiled forward kernel on transposed weights.
-pub fn input_grad<const I: usize, const O: usize>(
-    w: &[[f32; O]; I],
-    dy: &[[f32; O]],
-    dx: &mut [[f32; I]],
-) {
-    assert_eq!(dx.len(), dy.len(), "input_grad: batch sizes differ");
-    for (d, x) in dy.iter().zip(dx.iter_mut()) {
-        for i in 0..I {
-            let mut v = 0.0;
+    for dc in dy {
+        for d in dc.iter() {
             for o in 0..O {
-                v += w[i][o] * d[o];
+                gb[o] += d[o];
             }
-            x[i] = v;
         }
     }
 }
@@ -356,12 +572,25 @@ mod tests {
         l
     }
 
+    /// The order every kernel promises: bias, then one fused multiply-add per input in
+    /// ascending order, written out with `libm::fmaf` (software, independent of the kernels'
+    /// instruction selection).
+    fn reference_bits<const I: usize, const O: usize>(l: &Linear<I, O>, x: &[f32; I]) -> [f32; O] {
+        let mut y = l.b;
+        for i in 0..I {
+            for o in 0..O {
+                y[o] = libm::fmaf(x[i], l.w[i][o], y[o]);
+            }
+        }
+        y
+    }
+
     #[test]
     fn batch_forward_matches_naive_and_single_bits() {
-        // Sizes that exercise full tiles and every remainder path.
+        // Sizes that exercise full tiles, the 4-row and 1-row remainders and narrow outputs.
         const I: usize = 19;
         const O: usize = 37;
-        const B: usize = 7;
+        const B: usize = 11;
         let l = layer::<I, O>(1);
         let mut rng = Rng::seed_from_u64(2);
         let mut x = [[0f32; I]; B];
@@ -370,15 +599,70 @@ mod tests {
         l.forward(&x, &mut y);
         for n in 0..B {
             let r = naive_forward(&l, &x[n]);
+            let bits = reference_bits(&l, &x[n]);
             let mut y1 = [[0f32; O]; 1];
             l.forward(core::slice::from_ref(&x[n]), &mut y1);
             for o in 0..O {
                 assert!((y[n][o] as f64 - r[o]).abs() < 1e-5, "n {n} o {o}");
                 assert_eq!(
                     y[n][o].to_bits(),
+                    bits[o].to_bits(),
+                    "fma order n {n} o {o}"
+                );
+                assert_eq!(
+                    y[n][o].to_bits(),
                     y1[0][o].to_bits(),
                     "batch vs single n {n} o {o}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn narrow_layers_match_the_reference_order() {
+        const I: usize = 23;
+        const O: usize = 5;
+        const B: usize = 13;
+        let l = layer::<I, O>(3);
+        let mut x = [[0f32; I]; B];
+        Rng::seed_from_u64(4).fill_normal(x.as_flattened_mut());
+        let mut y = [[0f32; O]; B];
+        l.forward(&x, &mut y);
+        for n in 0..B {
+            let bits = reference_bits(&l, &x[n]);
+            for o in 0..O {
+                assert_eq!(y[n][o].to_bits(), bits[o].to_bits(), "n {n} o {o}");
+            }
+        }
+    }
+
+    #[test]
+    fn chunked_weight_gradient_equals_contiguous_bits() {
+        const I: usize = 20;
+        const O: usize = 35;
+        const B: usize = 12;
+        let mut rng = Rng::seed_from_u64(5);
+        let mut x = [[0f32; I]; B];
+        let mut dy = [[0f32; O]; B];
+        rng.fill_normal(x.as_flattened_mut());
+        rng.fill_normal(dy.as_flattened_mut());
+        let mut whole = [[0f32; O]; I];
+        weight_grad(&x, &dy, &mut whole);
+        // Three uneven chunks, rows computed in two separate calls.
+        let xs: [&[[f32; I]]; 3] = [&x[..5], &x[5..7], &x[7..]];
+        let ds: [&[[f32; O]]; 3] = [&dy[..5], &dy[5..7], &dy[7..]];
+        let mut parts = [[0f32; O]; I];
+        let (a, b) = parts.split_at_mut(7);
+        weight_grad_chunks(&xs, &ds, 0, a);
+        weight_grad_chunks(&xs, &ds, 7, b);
+        for i in 0..I {
+            for o in 0..O {
+                assert_eq!(whole[i][o].to_bits(), parts[i][o].to_bits(), "i {i} o {o}");
+                let mut r = 0f32;
+                for n in 0..B {
+                    r = libm::fmaf(x[n][i], dy[n][o], r);
+                }
+                assert_eq!(whole[i][o].to_bits(), r.to_bits(), "order i {i} o {o}");
             }
         }
     }

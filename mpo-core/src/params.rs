@@ -13,6 +13,9 @@ pub trait Params {
     fn tensor(&self, k: usize) -> &[f32];
     /// Tensor `k` (`k < TENSORS`) as a flat mutable slice.
     fn tensor_mut(&mut self, k: usize) -> &mut [f32];
+    /// Calls `f` with every tensor as a mutable slice, in tensor order, all borrowed at once
+    /// (so a caller can hand disjoint tensors to different threads).
+    fn visit_mut<'a>(&'a mut self, f: &mut dyn FnMut(&'a mut [f32]));
 
     /// Total number of scalars.
     fn len(&self) -> usize {
@@ -130,6 +133,9 @@ macro_rules! impl_params_for_fields {
                     k -= <$fty as $crate::params::Params>::TENSORS;
                 )+
                 panic!("tensor index past the end by {}", k)
+            }
+            fn visit_mut<'a>(&'a mut self, f: &mut dyn FnMut(&'a mut [f32])) {
+                $( $crate::params::Params::visit_mut(&mut self.$field, f); )+
             }
         }
     };

@@ -6,7 +6,30 @@
 
 use bytemuck::Zeroable;
 
+use crate::learner::BatchChunk;
 use crate::rng::Rng;
+
+/// The longest n-step transition [`Replay::fill_batch`] folds.
+pub const MAX_NSTEP: usize = 64;
+
+/// How [`Replay::fill_batch`] builds the rows of a batch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BatchMode {
+    /// Single transitions, each folded over up to `n` steps of its episode (`n = 1`: TD(0)).
+    OneStep {
+        /// Steps per transition.
+        n: u32,
+        /// Discount factor.
+        gamma: f32,
+    },
+    /// `len` consecutive transitions of one episode per row (Retrace).
+    Sequences {
+        /// Transitions per row.
+        len: u32,
+        /// Discount factor.
+        gamma: f32,
+    },
+}
 
 /// One transition, as inserted.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -250,6 +273,84 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
             }
         }
         Err(SampleError::NoSequence)
+    }
+
+    /// Fills every row of a learner's batch (`chunks`, rows in chunk order) with uniformly
+    /// drawn experience, as `mode` asks:
+    /// - [`BatchMode::OneStep`]: a transition drawn uniformly, folded with the up to `n - 1`
+    ///   transitions that follow it in its episode ([`crate::evaluation::nstep`]; fewer at
+    ///   the end of an episode or of the stored data) into position 0: its state and action,
+    ///   the discounted reward sum, the last next state and `gamma^k` times the discounts;
+    /// - [`BatchMode::Sequences`]: `len` consecutive transitions of one episode
+    ///   ([`Replay::sample_sequence_start`]) at positions `0..len`, each with
+    ///   `bootstrap = gamma * discount`.
+    pub fn fill_batch<const BC: usize, const L: usize>(
+        &self,
+        rng: &mut Rng,
+        chunks: &mut [BatchChunk<BC, L, OBS, ACT>],
+        mode: BatchMode,
+    ) -> Result<(), SampleError> {
+        if self.is_empty() {
+            return Err(SampleError::NotEnoughData);
+        }
+        for chunk in chunks.iter_mut() {
+            for n in 0..BC {
+                match mode {
+                    BatchMode::OneStep { n: steps, gamma } => {
+                        let k = rng.below(self.len) as usize;
+                        self.fold(k, steps.max(1) as usize, gamma, chunk, n);
+                    }
+                    BatchMode::Sequences { len, gamma } => {
+                        let len = len as usize;
+                        assert!(len <= L, "sequence length {len} exceeds the batch's {L}");
+                        let k0 = self.sample_sequence_start(rng, len)?;
+                        for k in 0..len {
+                            let i = self.slot(k0 + k);
+                            chunk.obs[k][n] = self.obs[i];
+                            chunk.action[k][n] = self.action[i];
+                            chunk.reward[k][n] = self.reward[i];
+                            chunk.next_obs[k][n] = self.next_obs[i];
+                            chunk.bootstrap[k][n] = gamma * self.discount[i];
+                            chunk.behaviour_log_prob[k][n] = self.behaviour_log_prob[i];
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Position 0 of row `n` of `chunk`: the `steps`-step transition starting at age index `k`.
+    fn fold<const BC: usize, const L: usize>(
+        &self,
+        k: usize,
+        steps: usize,
+        gamma: f32,
+        chunk: &mut BatchChunk<BC, L, OBS, ACT>,
+        n: usize,
+    ) {
+        let first = self.slot(k);
+        let mut rewards = [0f32; MAX_NSTEP];
+        let mut discounts = [0f32; MAX_NSTEP];
+        let mut m = 0;
+        let mut last = first;
+        while m < steps.min(MAX_NSTEP) && k + m < self.len() {
+            let i = self.slot(k + m);
+            if self.episode[i] != self.episode[first] {
+                break;
+            }
+            rewards[m] = self.reward[i];
+            discounts[m] = self.discount[i];
+            last = i;
+            m += 1;
+        }
+        let (r, b) = crate::evaluation::nstep(&rewards[..m], &discounts[..m], gamma);
+        chunk.obs[0][n] = self.obs[first];
+        chunk.action[0][n] = self.action[first];
+        chunk.reward[0][n] = r;
+        chunk.next_obs[0][n] = self.next_obs[last];
+        chunk.bootstrap[0][n] = b;
+        chunk.behaviour_log_prob[0][n] = self.behaviour_log_prob[first];
     }
 
     /// Behaviour log-probability of the transition at age index `k`.

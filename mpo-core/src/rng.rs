@@ -32,6 +32,15 @@ impl Rng {
         self.inner.state()
     }
 
+    /// A stream keyed by `(seed, stream, index)`: the key is hashed (SplitMix64's finaliser,
+    /// twice) before seeding, so neighbouring keys give unrelated generators. The learner
+    /// gives every batch row its own stream this way, which is what makes its draws
+    /// independent of how the batch is split over chunks and threads.
+    pub fn for_stream(seed: u64, stream: u32, index: u32) -> Self {
+        let key = ((stream as u64) << 32) | index as u64;
+        Self::seed_from_u64(mix64(seed ^ mix64(key)))
+    }
+
     /// An independent stream: the state 2^128 draws ahead, so streams never overlap.
     pub fn split(&mut self) -> Self {
         let child = self.clone();
@@ -74,20 +83,40 @@ impl Rng {
         }
     }
 
-    /// Standard normal draw (Box-Muller, one output per call so the state stays one word
-    /// stream with no cached value to checkpoint).
+    /// Standard normal draw (Box-Muller's cosine half: one output per call, so the stream is
+    /// one word sequence with no cached value to checkpoint).
     pub fn normal(&mut self) -> f32 {
         let u1 = self.uniform_open0();
         let u2 = self.uniform();
         libm::sqrtf(-2.0 * libm::logf(u1)) * libm::cosf(core::f32::consts::TAU * u2)
     }
 
-    /// Fills `out` with standard normal draws, in order.
+    /// Fills `out` with standard normal draws, in order: both halves of each Box-Muller pair
+    /// (`r cos t`, then `r sin t`), an odd last element from [`Rng::normal`]. The values
+    /// depend only on the stream and the length, so a caller that fills the same lengths in
+    /// the same order gets the same draws anywhere.
     pub fn fill_normal(&mut self, out: &mut [f32]) {
-        for x in out {
+        let mut pairs = out.chunks_exact_mut(2);
+        for p in &mut pairs {
+            let u1 = self.uniform_open0();
+            let u2 = self.uniform();
+            let r = libm::sqrtf(-2.0 * libm::logf(u1));
+            let (s, c) = libm::sincosf(core::f32::consts::TAU * u2);
+            p[0] = r * c;
+            p[1] = r * s;
+        }
+        if let [x] = pairs.into_remainder() {
             *x = self.normal();
         }
     }
+}
+
+/// SplitMix64's output function: a bijective 64-bit mix.
+fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
 }
 
 #[cfg(test)]
@@ -105,6 +134,10 @@ mod tests {
         for _ in 0..100 {
             assert_eq!(a.normal().to_bits(), c.normal().to_bits());
         }
+        let (mut x, mut y) = ([0f32; 7], [0f32; 7]);
+        a.fill_normal(&mut x);
+        c.fill_normal(&mut y);
+        assert_eq!(x.map(f32::to_bits), y.map(f32::to_bits));
         assert_ne!(
             Rng::seed_from_u64(8).next_u64(),
             Rng::seed_from_u64(7).next_u64()
@@ -116,8 +149,18 @@ mod tests {
         let mut r = Rng::seed_from_u64(1);
         let n = 200_000;
         let (mut s, mut s2, mut u) = (0f64, 0f64, 0f64);
-        for _ in 0..n {
-            let z = r.normal() as f64;
+        let mut pair = [0f32; 2];
+        let mut cross = 0f64;
+        for k in 0..n {
+            // Alternate the single draw and both halves of a pair: every path is a standard
+            // normal, and the two halves of a pair are uncorrelated.
+            let z = if k % 2 == 0 {
+                r.normal() as f64
+            } else {
+                r.fill_normal(&mut pair);
+                cross += pair[0] as f64 * pair[1] as f64;
+                pair[1] as f64
+            };
             s += z;
             s2 += z * z;
             let x = r.uniform();
@@ -129,6 +172,7 @@ mod tests {
         assert!(mean.abs() < 0.01, "normal mean {mean}");
         assert!((var - 1.0).abs() < 0.01, "normal variance {var}");
         assert!((u / n as f64 - 0.5).abs() < 0.005);
+        assert!((cross / (n / 2) as f64).abs() < 0.01, "pair correlation");
     }
 
     #[test]

@@ -2,16 +2,20 @@
 //!
 //! It exercises every numerical routine of the core (RNG draws, batch forward and backward of
 //! both networks, the Gaussian's sampling, log-density and KL gradients, gradient clipping,
-//! Adam) and returns an FNV-1a hash of the final parameters. The same seed must give the
+//! Adam) and returns an FNV-1a hash of the final parameters; [`SelfCheck::learner`] does the
+//! same for whole learner updates (E-step with its temperature solve, M-step, TD and Retrace
+//! targets, action penalization, shared samples, Polyak targets). The same seed must give the
 //! same hash in every build: std and `no_std`, debug and release, any target CPU. The
 //! freestanding test binary prints it, and the test suite compares.
 
 use bytemuck::Zeroable;
 
-use crate::actor::{Actor, ActorTape};
+use crate::actor::{Actor, ActorTape, ActorTransposed};
 use crate::adam::{AdamConfig, AdamState, adam_step};
-use crate::critic::{Critic, CriticTape};
+use crate::config::MpoConfig;
+use crate::critic::{Critic, CriticTape, CriticTransposed};
 use crate::gaussian::{Gaussian, GaussianGrad, head_backward, kl_parts_grad};
+use crate::learner::Learner;
 use crate::params::{Params, clip_global_norm, fingerprint};
 use crate::rng::Rng;
 
@@ -24,6 +28,8 @@ const FLOOR: f32 = 1e-3;
 
 type A = Actor<OBS, ACT, TRI, H, H>;
 type C = Critic<OBS, ACT, H, H>;
+/// The learner of the check: 2 chunks of 4 rows, sequences of up to 3, 6 samples.
+type SmallLearner = Learner<OBS, ACT, TRI, H, H, 12, H, 4, 2, 3, 6, 6>;
 
 /// All the state of the workload (about 40 KiB: fits on any stack it is meant for).
 #[derive(Zeroable)]
@@ -41,6 +47,9 @@ pub struct SelfCheck {
     critic_opt: AdamState,
     actor_tape: ActorTape<B, H, H>,
     critic_tape: CriticTape<B, H, H>,
+    actor_t: ActorTransposed<ACT, TRI, H, H>,
+    critic_t: CriticTransposed<H, H>,
+    learner: SmallLearner,
 }
 
 impl SelfCheck {
@@ -93,6 +102,7 @@ impl SelfCheck {
             &mut self.actor_tape,
             &d_mean,
             &d_chol,
+            &mut self.actor_t,
             &mut self.actor_grad,
         );
         clip_global_norm(&mut self.actor_grad, 1.0);
@@ -117,6 +127,7 @@ impl SelfCheck {
             &actions,
             &mut self.critic_tape,
             &dq,
+            &mut self.critic_t,
             &mut self.critic_grad,
         );
         clip_global_norm(&mut self.critic_grad, 1.0);
@@ -128,6 +139,74 @@ impl SelfCheck {
             &mut self.critic_m,
             &mut self.critic_v,
         );
+    }
+}
+
+impl SelfCheck {
+    /// Runs `updates` learner updates on random batches in each of three configurations (TD
+    /// with action penalization and per-dimension KL; Retrace over 3 transitions with Polyak
+    /// targets; shared samples) and returns the combined fingerprint of the online networks,
+    /// the temperatures and the multipliers.
+    pub fn learner(&mut self, seed: u64, updates: usize) -> u64 {
+        let base = MpoConfig {
+            mstep_iters: 2,
+            actor_clip: 40.0,
+            ..MpoConfig::REPORT
+        };
+        let configs = [
+            MpoConfig {
+                action_penalization: true,
+                per_dim_kl: true,
+                eps_mean: 0.05,
+                ..base
+            },
+            MpoConfig {
+                sequence_len: 3,
+                target_tau: 0.05,
+                ..base
+            },
+            MpoConfig {
+                shared_samples: true,
+                ..base
+            },
+        ];
+        let mut h = 0u64;
+        for (i, cfg) in configs.iter().enumerate() {
+            let l = &mut self.learner;
+            l.init(*cfg, seed + i as u64).expect("valid configuration");
+            let mut rng = Rng::seed_from_u64(seed ^ 0x5eed);
+            for _ in 0..updates {
+                for b in l.batch.iter_mut() {
+                    rng.fill_normal(b.obs.as_flattened_mut().as_flattened_mut());
+                    // Actions partly outside [-1, 1], so the penalty objective has work.
+                    rng.fill_normal(b.action.as_flattened_mut().as_flattened_mut());
+                    for a in b.action.as_flattened_mut().as_flattened_mut() {
+                        *a *= 1.5;
+                    }
+                    rng.fill_normal(b.next_obs.as_flattened_mut().as_flattened_mut());
+                    rng.fill_normal(b.reward.as_flattened_mut());
+                    for x in b.bootstrap.as_flattened_mut() {
+                        *x = 0.99;
+                    }
+                    for x in b.behaviour_log_prob.as_flattened_mut() {
+                        *x = -1.0 - rng.uniform();
+                    }
+                }
+                l.update().expect("finite update");
+            }
+            let d = &l.live.duals;
+            let mut dh = 0xcbf2_9ce4_8422_2325u64;
+            for x in [d.eta, d.eta_penalty]
+                .iter()
+                .chain(&d.alpha_mean_raw)
+                .chain(&d.alpha_cov_raw)
+            {
+                dh = (dh ^ x.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+            h ^= (fingerprint(&l.live.actor) ^ fingerprint(&l.live.critic).rotate_left(1) ^ dh)
+                .rotate_left(7 * i as u32);
+        }
+        h
     }
 }
 

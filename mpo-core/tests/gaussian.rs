@@ -3,8 +3,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use mpo_core::gaussian::{
-    Gaussian, GaussianGrad, head_backward, kl_parts, kl_parts_grad, kl_per_dim, kl_per_dim_grad,
-    tri_index,
+    Gaussian, GaussianGrad, SampleStats, head_backward, kl_parts, kl_parts_grad, kl_per_dim,
+    kl_per_dim_grad, tri_index, weighted_log_prob_cov, weighted_log_prob_mean,
 };
 use mpo_core::rng::Rng;
 use nalgebra::{SMatrix, SVector};
@@ -230,4 +230,57 @@ fn gradients_match_central_differences() {
     // The bound asserted per entry is 1e-2 relative (seen: about 2e-3); report the worst seen.
     eprintln!("worst relative error {worst:.2e}");
     let _ = tri_index(0, 0);
+}
+
+/// The M-step's closed forms over [`SampleStats`] equal the weighted sum of per-sample
+/// log-densities and their gradients (`log_prob_grad`, one triangular solve per sample), for
+/// the mean half (`N(mu, Sigma_old)`) and the covariance half (`N(mu_old, Sigma)`).
+#[test]
+fn sample_statistics_give_the_summed_likelihood_and_its_gradients() {
+    let mut rng = Rng::seed_from_u64(21);
+    let mut worst = 0f64;
+    for _ in 0..50 {
+        let (m0, c0) = random_head(&mut rng);
+        let (m1, c1) = random_head(&mut rng);
+        let old = Gaussian::from_head(&m0, &c0, FLOOR);
+        let new = Gaussian::from_head(&m1, &c1, FLOOR);
+        let mut st = SampleStats::ZERO;
+        let (mut ref_m, mut ref_c) = (0f64, 0f64);
+        let (mut gm_ref, mut gc_ref) = (GaussianGrad::<A>::ZERO, GaussianGrad::<A>::ZERO);
+        let pi_mean = Gaussian {
+            mu: new.mu,
+            l: old.l,
+        };
+        let pi_cov = Gaussian {
+            mu: old.mu,
+            l: new.l,
+        };
+        for _ in 0..7 {
+            let mut a = [0f32; A];
+            old.sample(&mut rng, &mut a);
+            let w = 0.05 + rng.uniform();
+            st.add(w, &a, &old.mu);
+            ref_m += w as f64 * pi_mean.log_prob_grad(&a, w, &mut gm_ref) as f64;
+            ref_c += w as f64 * pi_cov.log_prob_grad(&a, w, &mut gc_ref) as f64;
+        }
+        let (mut gm, mut gc) = (GaussianGrad::<A>::ZERO, GaussianGrad::<A>::ZERO);
+        let vm = weighted_log_prob_mean(&old, &new.mu, &st, 1.0, &mut gm) as f64;
+        let vc = weighted_log_prob_cov(&new, &st, 1.0, &mut gc) as f64;
+        let rel = |a: f64, b: f64| (a - b).abs() / (1.0 + a.abs().max(b.abs()));
+        worst = worst.max(rel(vm, ref_m)).max(rel(vc, ref_c));
+        assert!(rel(vm, ref_m) < 1e-4, "mean half {vm} vs {ref_m}");
+        assert!(rel(vc, ref_c) < 1e-4, "covariance half {vc} vs {ref_c}");
+        for j in 0..A {
+            assert!(
+                rel(gm.mu[j] as f64, gm_ref.mu[j] as f64) < 1e-4,
+                "d/d mu {j}"
+            );
+            for k in 0..=j {
+                let (x, y) = (gc.l[j][k] as f64, gc_ref.l[j][k] as f64);
+                worst = worst.max(rel(x, y));
+                assert!(rel(x, y) < 1e-4, "d/d L[{j}][{k}]: {x} vs {y}");
+            }
+        }
+    }
+    eprintln!("sample statistics vs per-sample sums: worst relative difference {worst:.2e}");
 }

@@ -1,11 +1,16 @@
-//! M-step: the decoupled KL constraints hold on average, measured between the policy before
-//! and after each update; a tiny covariance bound keeps the covariance (almost) still.
+//! M-step and whole updates: the decoupled KL constraints bind at their bounds (measured
+//! between the policy before and after each update, from below and from above), the
+//! multipliers move the right way, a tiny covariance bound is met relative to itself, an
+//! update's bits depend on neither the chunking of the batch nor the threads, failed updates
+//! are undone, and Retrace inside the learner equals an independently written recursion.
 
 #![allow(clippy::needless_range_loop)]
 
+use mpo_core::actor::Actor;
 use mpo_core::config::MpoConfig;
 use mpo_core::gaussian::{Gaussian, kl_parts};
-use mpo_core::learner::Learner;
+use mpo_core::learner::{Learner, NonFinite, UpdateError, UpdateStats};
+use mpo_core::parallel::Parallel;
 use mpo_core::params::Params;
 use mpo_core::rng::Rng;
 
@@ -13,92 +18,128 @@ const OBS: usize = 3;
 const ACT: usize = 2;
 const TRI: usize = 3;
 const H: usize = 32;
-const B: usize = 64;
+const BC: usize = 16;
+const C: usize = 4;
+const B: usize = BC * C;
+const SEQ: usize = 4;
 const M: usize = 20;
 const N: usize = 4;
 
-type L = Learner<OBS, ACT, TRI, H, H, B, M, N>;
+type L = Learner<OBS, ACT, TRI, H, H, H, H, BC, C, SEQ, M, N>;
+type Pi = Actor<OBS, ACT, TRI, H, H>;
 
-/// Fills the batch with a contextual bandit: reward `-|a - f(s)|^2`, terminal.
-fn fill_batch(l: &mut L, rng: &mut Rng) {
-    for n in 0..B {
-        rng.fill_normal(&mut l.batch.obs[n]);
-        rng.fill_normal(&mut l.batch.action[n]);
-        let s = l.batch.obs[n];
-        let f = [0.5 * s[0] - 0.2, 0.3 * s[1] + 0.1 * s[2]];
-        let a = l.batch.action[n];
-        l.batch.reward[n] = -((a[0] - f[0]).powi(2) + (a[1] - f[1]).powi(2));
-        l.batch.next_obs[n] = s;
-        l.batch.bootstrap[n] = 0.0;
+/// The bandit's best action at state `s`.
+fn best(s: &[f32; OBS]) -> [f32; ACT] {
+    [0.5 * s[0] - 0.2, 0.3 * s[1] + 0.1 * s[2]]
+}
+
+/// Fills position 0 of every row with a contextual bandit: reward `-|a - f(s)|^2`, terminal.
+/// Works for any chunking of a 64-row batch.
+fn fill_bandit<const BC2: usize, const C2: usize>(
+    batch: &mut [mpo_core::learner::BatchChunk<BC2, SEQ, OBS, ACT>; C2],
+    rng: &mut Rng,
+) {
+    for n in 0..BC2 * C2 {
+        let ch = &mut batch[n / BC2];
+        let i = n % BC2;
+        rng.fill_normal(&mut ch.obs[0][i]);
+        rng.fill_normal(&mut ch.action[0][i]);
+        let s = ch.obs[0][i];
+        let (f, a) = (best(&s), ch.action[0][i]);
+        ch.reward[0][i] = -((a[0] - f[0]).powi(2) + (a[1] - f[1]).powi(2));
+        ch.next_obs[0][i] = s;
+        ch.bootstrap[0][i] = 0.0;
+        ch.behaviour_log_prob[0][i] = 0.0;
     }
 }
 
-/// Mean KL parts (decoupled, as constrained) between `before` and `after` over the batch.
-fn measured_kl(l: &L, before: &mpo_core::actor::Actor<OBS, ACT, TRI, H, H>) -> (f64, f64) {
+fn states(l: &L) -> Vec<[f32; OBS]> {
+    (0..B)
+        .map(|n| {
+            let (c, i) = L::slot(n);
+            l.batch[c].obs[0][i]
+        })
+        .collect()
+}
+
+/// Mean KL parts (decoupled, as constrained) between `before` and the online policy.
+fn measured_kl(l: &L, before: &Pi) -> (f64, f64) {
     let (mut km, mut kc) = (0f64, 0f64);
     let floor = l.cfg.std_floor;
-    for n in 0..B {
-        let p0: Gaussian<ACT> = before.distribution(&l.batch.obs[n], floor);
-        let p1 = l.live.actor.distribution(&l.batch.obs[n], floor);
+    for s in states(l) {
+        let p0: Gaussian<ACT> = before.distribution(&s, floor);
+        let p1 = l.live.actor.distribution(&s, floor);
         km += kl_parts(&p0, &Gaussian { mu: p1.mu, l: p0.l }).mean as f64;
         kc += kl_parts(&p0, &Gaussian { mu: p0.mu, l: p1.l }).cov as f64;
     }
     (km / B as f64, kc / B as f64)
 }
 
-/// Runs 100 updates and returns the average over updates of the KL parts measured after each
-/// update between the target policy (MPO's "old" policy, which the constraints are relative
-/// to; with `target_period >= 100` it stays fixed for the whole run) and the online policy.
-fn run(cfg: MpoConfig) -> (f64, f64, Box<L>) {
+struct Run {
+    /// KL parts between the target policy and the online policy after each update.
+    kl: Vec<(f64, f64)>,
+    stats: Vec<UpdateStats>,
+    /// `(alpha_mu, alpha_Sigma)` before each update.
+    alpha_before: Vec<(f32, f32)>,
+}
+
+/// `updates` updates on fresh bandit batches; the target policy (MPO's "old" policy, which the
+/// constraints are relative to) stays fixed while `target_period` exceeds `updates`.
+fn run(cfg: MpoConfig, updates: usize) -> Run {
     let mut l: Box<L> = bytemuck::zeroed_box();
     l.init(cfg, 5).unwrap();
     let mut rng = Rng::seed_from_u64(6);
-    let mut before: Box<mpo_core::actor::Actor<OBS, ACT, TRI, H, H>> = bytemuck::zeroed_box();
-    let (mut km, mut kc) = (0f64, 0f64);
-    for _ in 0..100 {
-        fill_batch(&mut l, &mut rng);
+    let mut before: Box<Pi> = bytemuck::zeroed_box();
+    let mut r = Run {
+        kl: vec![],
+        stats: vec![],
+        alpha_before: vec![],
+    };
+    for _ in 0..updates {
+        fill_bandit(&mut l.batch, &mut rng);
         before.copy_from(&l.target_actor);
-        l.update().unwrap();
-        let (a, b) = measured_kl(&l, &before);
-        km += a;
-        kc += b;
+        let d = l.live.duals;
+        r.alpha_before.push((d.alpha_mean()[0], d.alpha_cov()[0]));
+        r.stats.push(l.update().unwrap());
+        r.kl.push(measured_kl(&l, &before));
     }
-    (km / 100.0, kc / 100.0, l)
+    r
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let v: Vec<f64> = v.collect();
+    v.iter().sum::<f64>() / v.len() as f64
 }
 
 fn aggressive() -> MpoConfig {
-    // The report's settings with the target copied every update (so "old" is the policy
-    // before the update) and a bigger actor step, so the bounds bind.
+    // A bigger actor step and a target that stays put for the whole run, so the policy runs
+    // into both bounds and the multipliers have to hold it there.
     MpoConfig {
-        actor_lr: 1e-3,
+        actor_lr: 3e-3,
         target_period: 1000,
         eps_mean: 1e-2,
         eps_cov: 1e-4,
+        mstep_iters: 1,
+        dual_lr: 0.05,
+        alpha_mean_init: 1.0,
+        alpha_cov_init: 1.0,
         ..MpoConfig::REPORT
     }
 }
 
 #[test]
-fn kl_constraints_hold_on_average_and_the_check_can_fail() {
+fn kl_constraints_bind_at_their_bounds_and_the_check_can_fail() {
     let cfg = aggressive();
-    let (km, kc, _) = run(cfg);
-    eprintln!(
-        "constrained: KL_mu {km:.3e} (bound {:.1e}), KL_Sigma {kc:.3e} (bound {:.1e})",
-        cfg.eps_mean, cfg.eps_cov
-    );
-    assert!(
-        km <= 1.5 * cfg.eps_mean as f64,
-        "KL_mu {km} vs bound {}",
-        cfg.eps_mean
-    );
-    assert!(
-        kc <= 1.5 * cfg.eps_cov as f64,
-        "KL_Sigma {kc} vs bound {}",
-        cfg.eps_cov
-    );
+    let r = run(cfg, 200);
+    // After the multipliers have settled (the second half), the KLs sit at their bounds.
+    let km = mean(r.kl[100..].iter().map(|k| k.0)) / cfg.eps_mean as f64;
+    let kc = mean(r.kl[100..].iter().map(|k| k.1)) / cfg.eps_cov as f64;
+    eprintln!("constrained: KL_mu / eps_mu = {km:.3}, KL_Sigma / eps_Sigma = {kc:.3}");
+    assert!((0.5..=1.5).contains(&km), "KL_mu at {km} x its bound");
+    assert!((0.5..=1.5).contains(&kc), "KL_Sigma at {kc} x its bound");
 
-    // Negative control: the same run with bounds 1000x looser moves far past the tight bounds,
-    // so the assertions above measure the constraint, not a step size too small to matter.
+    // Negative control: bounds 1000x looser move far past the tight bounds, so the
+    // assertions above measure the constraint, not a step size too small to matter.
     let loose = MpoConfig {
         eps_mean: 10.0,
         eps_cov: 1.0,
@@ -106,76 +147,186 @@ fn kl_constraints_hold_on_average_and_the_check_can_fail() {
         alpha_cov_init: 1e-3,
         ..cfg
     };
-    let (km2, kc2, _) = run(loose);
-    eprintln!("loose: KL_mu {km2:.3e}, KL_Sigma {kc2:.3e}");
+    let r2 = run(loose, 200);
+    let km2 = mean(r2.kl[100..].iter().map(|k| k.0)) / cfg.eps_mean as f64;
+    let kc2 = mean(r2.kl[100..].iter().map(|k| k.1)) / cfg.eps_cov as f64;
+    eprintln!("loose: KL_mu / tight bound = {km2:.3}, KL_Sigma / tight bound = {kc2:.3}");
     assert!(
-        km2 > 1.5 * cfg.eps_mean as f64 || kc2 > 1.5 * cfg.eps_cov as f64,
+        km2 > 1.5 && kc2 > 1.5,
         "loose run stayed inside the tight bounds"
     );
 }
 
 #[test]
-fn tiny_covariance_bound_keeps_the_covariance_still() {
+fn multipliers_rise_while_the_kl_exceeds_its_bound_and_fall_below_it() {
+    let cfg = aggressive();
+    let r = run(cfg, 200);
+    let (mut up, mut down) = (0, 0);
+    for t in 0..r.stats.len() - 1 {
+        // The multipliers were updated with the KLs of the M-step's forward pass.
+        let s = &r.stats[t];
+        let (am0, ac0) = r.alpha_before[t];
+        let (am1, ac1) = r.alpha_before[t + 1];
+        for (kl, eps, a0, a1) in [
+            (s.kl_mean, cfg.eps_mean, am0, am1),
+            (s.kl_cov, cfg.eps_cov, ac0, ac1),
+        ] {
+            if (kl / eps - 1.0).abs() < 1e-3 {
+                continue;
+            }
+            if kl > eps {
+                assert!(
+                    a1 > a0,
+                    "update {t}: KL {kl} > {eps} but alpha {a0} -> {a1}"
+                );
+                up += 1;
+            } else {
+                assert!(
+                    a1 < a0,
+                    "update {t}: KL {kl} < {eps} but alpha {a0} -> {a1}"
+                );
+                down += 1;
+            }
+        }
+    }
+    eprintln!("{up} rises above the bound, {down} falls below it");
+    assert!(
+        up > 10 && down > 10,
+        "both directions exercised: {up} {down}"
+    );
+}
+
+/// A covariance bound a thousand times tighter than the report's is held at its own scale.
+/// How tight a bound an M-step can hold is limited by its optimiser: Adam moves each parameter
+/// by about `lr` per step whatever the gradient, so with the report's `lr = 3e-4` the measured
+/// floor is near `1e-7` (this test, measured: 1.2 x the bound at 1e-7, 5.6 x at 1e-8 and 48 x
+/// at 1e-9; with `lr = 3e-3`, 3.2 x at 1e-6).
+#[test]
+fn tiny_covariance_bound_is_met_relative_to_itself() {
+    let eps = 1e-7f32;
     let tiny = MpoConfig {
-        eps_cov: 1e-9,
+        eps_cov: eps,
+        alpha_cov_init: 1e3,
+        actor_lr: 3e-4,
         ..aggressive()
     };
-    let (_, kc_tiny, _) = run(tiny);
+    let r = run(tiny, 200);
+    let kc = mean(r.kl[100..].iter().map(|k| k.1));
     // Control: a loose bound with a small initial multiplier lets the covariance move.
-    let (_, kc_free, _) = run(MpoConfig {
-        eps_cov: 1e-1,
-        alpha_cov_init: 1e-3,
-        ..aggressive()
-    });
-    eprintln!("KL_Sigma(target || online): eps 1e-9 -> {kc_tiny:.3e}; eps 1e-1 -> {kc_free:.3e}");
-    assert!(kc_tiny < 1e-6, "covariance moved: {kc_tiny}");
+    let free = run(
+        MpoConfig {
+            eps_cov: 1e-1,
+            alpha_cov_init: 1e-3,
+            ..tiny
+        },
+        200,
+    );
+    let kc_free = mean(free.kl[100..].iter().map(|k| k.1));
+    eprintln!(
+        "KL_Sigma(target || online): eps {eps:e} -> {kc:.3e} ({:.3} x the bound); eps 1e-1 -> {kc_free:.3e}",
+        kc / eps as f64
+    );
     assert!(
-        kc_free > 100.0 * kc_tiny.max(1e-12),
+        (0.5..=1.5).contains(&(kc / eps as f64)),
+        "KL_Sigma {kc:.3e} is {:.2} x its bound",
+        kc / eps as f64
+    );
+    assert!(
+        kc_free > 1e3 * kc,
         "the looser bound did not let it move: {kc_free}"
     );
 }
 
-#[test]
-fn updates_are_bit_identical_across_runs_and_report_finite_stats() {
-    let cfg = MpoConfig {
-        target_period: 10,
-        ..MpoConfig::REPORT
-    };
-    let mk = || {
-        let mut l: Box<L> = bytemuck::zeroed_box();
-        l.init(cfg, 9).unwrap();
-        let mut rng = Rng::seed_from_u64(10);
-        let mut last = None;
-        for _ in 0..30 {
-            fill_batch(&mut l, &mut rng);
-            last = Some(l.update().unwrap());
+/// Runs items on up to `threads` scoped threads, each taking every `threads`-th item
+/// starting from a rotating offset, so the order differs from the serial one.
+struct Threads(usize);
+
+impl Parallel for Threads {
+    fn for_each<T: Send>(&self, items: &mut [T], f: &(dyn Fn(usize, &mut T) + Sync)) {
+        let mut buckets: Vec<Vec<(usize, &mut T)>> = (0..self.0).map(|_| vec![]).collect();
+        for (k, it) in items.iter_mut().enumerate().rev() {
+            buckets[k % self.0].push((k, it));
         }
-        (l, last.unwrap())
-    };
-    let (a, sa) = mk();
-    let (b, sb) = mk();
-    assert!(a.live.actor.bits_eq(&b.live.actor) && a.live.critic.bits_eq(&b.live.critic));
-    assert!(a.target_actor.bits_eq(&b.target_actor));
-    assert_eq!(a.rng_state, b.rng_state);
-    assert_eq!(format!("{sa:?}"), format!("{sb:?}"));
-    for v in [
-        sa.critic_loss,
-        sa.eta,
-        sa.estep_kl,
-        sa.alpha_mean,
-        sa.alpha_cov,
-        sa.kl_mean,
-        sa.kl_cov,
-        sa.q_mean,
-        sa.std_mean,
-    ] {
-        assert!(v.is_finite(), "{sa:?}");
+        std::thread::scope(|s| {
+            for b in buckets {
+                s.spawn(move || {
+                    for (k, it) in b {
+                        f(k, it);
+                    }
+                });
+            }
+        });
     }
-    // The E-step meets its bound.
+    fn threads(&self) -> usize {
+        self.0
+    }
+}
+
+/// 20 updates of a learner with `C2` chunks of `BC2` rows (64 rows in all) on `par`; its
+/// parameters, random state and statistics.
+fn chunked_run<const BC2: usize, const C2: usize, P: Parallel>(
+    cfg: MpoConfig,
+    par: &P,
+) -> (
+    Box<Learner<OBS, ACT, TRI, H, H, H, H, BC2, C2, SEQ, M, N>>,
+    String,
+) {
+    let mut l: Box<Learner<OBS, ACT, TRI, H, H, H, H, BC2, C2, SEQ, M, N>> = bytemuck::zeroed_box();
+    l.init(cfg, 9).unwrap();
+    let mut rng = Rng::seed_from_u64(10);
+    let mut log = String::new();
+    for _ in 0..20 {
+        fill_bandit(&mut l.batch, &mut rng);
+        log += &format!("{:?}\n", l.update_with(par).unwrap());
+    }
+    (l, log)
+}
+
+#[test]
+fn updates_have_the_same_bits_for_any_chunking_and_thread_count() {
+    for cfg in [
+        MpoConfig {
+            target_period: 10,
+            ..MpoConfig::REPORT
+        },
+        MpoConfig {
+            action_penalization: true,
+            per_dim_kl: true,
+            target_tau: 0.01,
+            ..MpoConfig::REPORT
+        },
+    ] {
+        let serial = mpo_core::parallel::Serial;
+        let (a, la) = chunked_run::<16, 4, _>(cfg, &serial);
+        let (b, lb) = chunked_run::<64, 1, _>(cfg, &serial);
+        let (c, lc) = chunked_run::<8, 8, _>(cfg, &Threads(3));
+        let (d, ld) = chunked_run::<16, 4, _>(cfg, &Threads(2));
+        for (name, l2, log) in [("64x1", &b.live, &lb), ("8x8, 3 threads", &c.live, &lc)] {
+            assert!(
+                a.live.actor.bits_eq(&l2.actor) && a.live.critic.bits_eq(&l2.critic),
+                "{name}: parameters differ"
+            );
+            assert_eq!(a.live.duals, l2.duals, "{name}");
+            assert_eq!(&la, log, "{name}: statistics differ");
+        }
+        assert!(a.live.actor.bits_eq(&d.live.actor) && a.live.critic.bits_eq(&d.live.critic));
+        assert_eq!(la, ld);
+        assert!(a.target_actor.bits_eq(&c.target_actor));
+        assert_eq!(a.rng_state, c.rng_state);
+    }
+    // Same seed, same bits across runs, and the E-step meets its bound.
+    let cfg = MpoConfig::REPORT;
+    let (a, _) = chunked_run::<16, 4, _>(cfg, &mpo_core::parallel::Serial);
+    let (b, _) = chunked_run::<16, 4, _>(cfg, &mpo_core::parallel::Serial);
+    assert!(a.live.actor.bits_eq(&b.live.actor));
+    let mut l = a;
+    let mut rng = Rng::seed_from_u64(3);
+    fill_bandit(&mut l.batch, &mut rng);
+    let s = l.update().unwrap();
     assert!(
-        (sa.estep_kl - 0.1).abs() < 0.01 * 0.1,
+        (s.estep_kl - 0.1).abs() < 0.01 * 0.1,
         "E-step KL {}",
-        sa.estep_kl
+        s.estep_kl
     );
 }
 
@@ -184,9 +335,9 @@ fn non_finite_input_is_reported_and_the_update_undone() {
     let mut l: Box<L> = bytemuck::zeroed_box();
     l.init(MpoConfig::REPORT, 1).unwrap();
     let mut rng = Rng::seed_from_u64(2);
-    fill_batch(&mut l, &mut rng);
+    fill_bandit(&mut l.batch, &mut rng);
     l.update().unwrap();
-    let mut actor: Box<mpo_core::actor::Actor<OBS, ACT, TRI, H, H>> = bytemuck::zeroed_box();
+    let mut actor: Box<Pi> = bytemuck::zeroed_box();
     let mut critic: Box<mpo_core::critic::Critic<OBS, ACT, H, H>> = bytemuck::zeroed_box();
     actor.copy_from(&l.live.actor);
     critic.copy_from(&l.live.critic);
@@ -194,18 +345,13 @@ fn non_finite_input_is_reported_and_the_update_undone() {
     let updates = l.updates;
 
     // NaN in the batch: rejected before anything runs.
-    fill_batch(&mut l, &mut rng);
-    l.batch.reward[3] = f32::NAN;
-    assert_eq!(
-        l.update(),
-        Err(mpo_core::learner::UpdateError::NonFinite(
-            mpo_core::learner::NonFinite::Batch
-        ))
-    );
+    fill_bandit(&mut l.batch, &mut rng);
+    l.batch[2].reward[0][3] = f32::NAN;
+    assert_eq!(l.update(), Err(UpdateError::NonFinite(NonFinite::Batch)));
     // A huge reward: finite input, non-finite loss; the critic step must be undone.
-    fill_batch(&mut l, &mut rng);
-    l.batch.reward[0] = f32::MAX;
-    l.batch.reward[1] = f32::MAX;
+    fill_bandit(&mut l.batch, &mut rng);
+    l.batch[0].reward[0][0] = f32::MAX;
+    l.batch[0].reward[0][1] = f32::MAX;
     let e = l.update().unwrap_err();
     eprintln!("huge reward: {e}");
     assert!(
@@ -215,74 +361,90 @@ fn non_finite_input_is_reported_and_the_update_undone() {
     assert_eq!(l.live.duals, duals);
     assert_eq!(l.updates, updates);
     // Infinite parameters are caught after the step too.
-    fill_batch(&mut l, &mut rng);
+    fill_bandit(&mut l.batch, &mut rng);
     l.live.actor.l1.b[0] = f32::INFINITY;
     assert!(l.update().is_err());
 }
 
-#[test]
-fn retrace_update_with_one_step_sequences_equals_the_td_update() {
-    use mpo_core::learner::SequenceBatch;
-    let cfg = MpoConfig {
-        target_period: 3,
-        ..MpoConfig::REPORT
-    };
-    let mut a: Box<L> = bytemuck::zeroed_box();
-    let mut b: Box<L> = bytemuck::zeroed_box();
-    a.init(cfg, 4).unwrap();
-    b.init(cfg, 4).unwrap();
-    let mut rng = Rng::seed_from_u64(8);
-    let mut seq: Box<SequenceBatch<B, 1, OBS, ACT>> = bytemuck::zeroed_box();
-    for _ in 0..5 {
-        fill_batch(&mut a, &mut rng);
-        a.batch.bootstrap = [cfg.gamma; B];
-        seq.obs[0] = a.batch.obs;
-        seq.action[0] = a.batch.action;
-        seq.reward[0] = a.batch.reward;
-        seq.next_obs[0] = a.batch.next_obs;
-        seq.discount[0] = [1.0; B];
-        let sa = a.update().unwrap();
-        let sb = b.update_retrace(&seq).unwrap();
-        assert_eq!(format!("{sa:?}"), format!("{sb:?}"));
+/// Retrace (paper eq. 11) over one row, written from the equation:
+/// `Q_ret(j) = r_j + b_j (V(s_{j+1}) + c_{j+1} (Q_ret(j+1) - Q(s_{j+1}, a_{j+1})))` with
+/// `c = min(1, pi / b)` and only `V` past the last transition.
+fn retrace_reference(q: &[f64], v: &[f64], r: &[f64], b: &[f64], log_ratio: &[f64]) -> f64 {
+    let len = q.len();
+    let mut ret = r[len - 1] + b[len - 1] * v[len - 1];
+    for j in (0..len - 1).rev() {
+        let c = log_ratio[j + 1].exp().min(1.0);
+        ret = r[j] + b[j] * (v[j] + c * (ret - q[j + 1]));
     }
-    assert!(a.live.actor.bits_eq(&b.live.actor) && a.live.critic.bits_eq(&b.live.critic));
+    ret
 }
 
 #[test]
-fn retrace_update_on_longer_sequences_runs_and_stays_finite() {
-    use mpo_core::learner::SequenceBatch;
-    const LEN: usize = 4;
+fn retrace_inside_the_learner_equals_an_independent_recursion() {
+    let cfg = MpoConfig {
+        sequence_len: SEQ as u32,
+        ..MpoConfig::REPORT
+    };
     let mut l: Box<L> = bytemuck::zeroed_box();
-    l.init(MpoConfig::REPORT, 4).unwrap();
+    l.init(cfg, 4).unwrap();
+    // A critic that ignores the action: V(s) = Q(s, anything) exactly, whatever the samples.
+    l.live.critic.l1a.w = [[0.0; H]; ACT];
+    l.target_critic.copy_from(&l.live.critic);
     let mut rng = Rng::seed_from_u64(9);
-    let mut seq: Box<SequenceBatch<B, LEN, OBS, ACT>> = bytemuck::zeroed_box();
-    for _ in 0..5 {
-        // A random walk in state with the bandit reward; behaviour log-probabilities from the
-        // current policy, so the traces are near 1.
-        for n in 0..B {
-            let mut s = [0f32; OBS];
-            rng.fill_normal(&mut s);
-            for k in 0..LEN {
-                let mut a = [0f32; ACT];
-                let logp = l.sample_action(&s, &mut rng, &mut a);
-                let mut next = s;
-                next[0] += 0.1 * a[0];
-                seq.obs[k][n] = s;
-                seq.action[k][n] = a;
-                seq.reward[k][n] = -(a[0] - 0.5 * s[0]).powi(2);
-                seq.next_obs[k][n] = next;
-                seq.discount[k][n] = 1.0;
-                seq.behaviour_log_prob[k][n] = logp;
-                s = next;
-            }
+    let (mut ys, mut qs) = (vec![], vec![]);
+    let mut traces = vec![];
+    for n in 0..B {
+        let (c, i) = L::slot(n);
+        let ch = &mut l.batch[c];
+        let mut s = [0f32; OBS];
+        rng.fill_normal(&mut s);
+        let (mut qv, mut vv, mut rv, mut bv, mut lr) = (vec![], vec![], vec![], vec![], vec![]);
+        for k in 0..SEQ {
+            let mut a = [0f32; ACT];
+            rng.fill_normal(&mut a);
+            let next = [s[0] + 0.3 * a[0], s[1] - 0.2 * a[1], 0.9 * s[2]];
+            let pi = l.target_actor.distribution(&s, cfg.std_floor).log_prob(&a);
+            // Behaviour log-probabilities around the target's: traces above and below 1.
+            let blp = pi + 1.5 * (rng.uniform() - 0.5);
+            let (r, boot) = (
+                s[0] - a[1] * a[1],
+                if k == 2 && n % 7 == 0 { 0.0 } else { 0.99 },
+            );
+            ch.obs[k][i] = s;
+            ch.action[k][i] = a;
+            ch.reward[k][i] = r;
+            ch.next_obs[k][i] = next;
+            ch.bootstrap[k][i] = boot;
+            ch.behaviour_log_prob[k][i] = blp;
+            qv.push(l.target_critic.q_one(&s, &a) as f64);
+            vv.push(l.target_critic.q_one(&next, &[0.0; ACT]) as f64);
+            rv.push(r as f64);
+            bv.push(boot as f64);
+            lr.push((pi - blp) as f64);
+            traces.push((pi - blp).exp().min(1.0));
+            s = next;
         }
-        let st = l.update_retrace(&seq).unwrap();
-        assert!(
-            st.critic_loss.is_finite() && st.target_mean.is_finite(),
-            "{st:?}"
-        );
+        ys.push(retrace_reference(&qv, &vv, &rv, &bv, &lr));
+        qs.push(l.live.critic.q_one(&ch.obs[0][i], &ch.action[0][i]) as f64);
     }
+    let below = traces.iter().filter(|&&c| c < 0.9).count();
+    assert!(below > B / 4, "traces are non-trivial ({below} below 0.9)");
+    let st = l.update().unwrap();
+    let target_mean = ys.iter().sum::<f64>() / B as f64;
+    let loss = ys
+        .iter()
+        .zip(&qs)
+        .map(|(y, q)| 0.5 * (q - y).powi(2))
+        .sum::<f64>()
+        / B as f64;
+    eprintln!(
+        "Retrace: target mean {} (reference {target_mean}), critic loss {} (reference {loss})",
+        st.target_mean, st.critic_loss
+    );
+    assert!((st.target_mean as f64 - target_mean).abs() < 1e-4 * target_mean.abs().max(1.0));
+    assert!((st.critic_loss as f64 - loss).abs() < 1e-4 * loss.max(1.0));
+
     // A non-finite behaviour log-probability is rejected.
-    seq.behaviour_log_prob[2][7] = f32::NAN;
-    assert!(l.update_retrace(&seq).is_err());
+    l.batch[1].behaviour_log_prob[2][7] = f32::NAN;
+    assert_eq!(l.update(), Err(UpdateError::NonFinite(NonFinite::Batch)));
 }

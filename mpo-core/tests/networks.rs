@@ -4,8 +4,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use bytemuck::Zeroable;
-use mpo_core::actor::{Actor, ActorTape};
-use mpo_core::critic::{Critic, CriticTape};
+use mpo_core::actor::{Actor, ActorGradInputs, ActorTape, ActorTransposed};
+use mpo_core::critic::{Critic, CriticTape, CriticTransposed};
 use mpo_core::linear::Linear;
 use mpo_core::params::Params;
 use mpo_core::rng::Rng;
@@ -97,7 +97,9 @@ fn linear_layer_weight_bias_and_input_gradients() {
     };
     let mut g = Linear::<I, O>::zeroed();
     let mut dx = [[0f32; I]; B];
-    l.backward(&x, &c, &mut g, Some(&mut dx));
+    let mut wt = [[0f32; I]; O];
+    l.backward(&x, &c, &mut g);
+    l.input_grad(&c, &mut dx, &mut wt);
     let worst = check_all(&mut l.clone(), &g, &mut |p| (f(p, &x), 0), 1e-2);
     // Input gradient.
     let h = 1e-3f32;
@@ -156,7 +158,8 @@ fn actor_gradients_for_every_parameter() {
     };
     f(&net, &mut tape);
     let mut grad = Net::zeroed();
-    net.backward(&obs, &mut tape, &cm, &cc, &mut grad);
+    let mut t: Box<ActorTransposed<ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
+    net.backward(&obs, &mut tape, &cm, &cc, &mut t, &mut grad);
     let mut tape2: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
     let worst = check_all(&mut net.clone(), &grad, &mut |p| f(p, &mut tape2), 1e-2);
     eprintln!(
@@ -189,7 +192,8 @@ fn critic_gradients_for_every_parameter() {
     };
     f(&net, &mut tape);
     let mut grad = Net::zeroed();
-    net.backward(&obs, &act, &mut tape, &cq, &mut grad);
+    let mut t: Box<CriticTransposed<H1, H2>> = bytemuck::zeroed_box();
+    net.backward(&obs, &act, &mut tape, &cq, &mut t, &mut grad);
     let mut tape2: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
     let worst = check_all(&mut net.clone(), &grad, &mut |p| f(p, &mut tape2), 1e-2);
     eprintln!(
@@ -223,4 +227,69 @@ fn actor_single_state_forward_equals_batch_bits() {
         assert_eq!(m1.map(f32::to_bits), m[n].map(f32::to_bits));
         assert_eq!(c1.map(f32::to_bits), c[n].map(f32::to_bits));
     }
+}
+
+/// The learner's path: the batch in two chunks with their own tapes, the hidden-layer
+/// gradients per chunk, the weight gradients in small parameter blocks computed in reverse
+/// order: bit for bit the gradient of one contiguous backward pass.
+#[test]
+fn chunked_blocked_actor_gradient_equals_contiguous_bits() {
+    type Net = Actor<OBS, ACT, TRI, H1, H2>;
+    const B1: usize = 4;
+    const B2: usize = B - B1;
+    let mut rng = Rng::seed_from_u64(7);
+    let mut net = Net::zeroed();
+    net.init(&mut rng, 0.7, 1e-3);
+    net.mean.init_uniform(&mut rng);
+    net.chol.init_uniform(&mut rng);
+    let mut obs = [[0f32; OBS]; B];
+    let mut cm = [[0f32; ACT]; B];
+    let mut cc = [[0f32; TRI]; B];
+    rng.fill_normal(obs.as_flattened_mut());
+    rng.fill_normal(cm.as_flattened_mut());
+    rng.fill_normal(cc.as_flattened_mut());
+    let (mut m, mut c) = ([[0f32; ACT]; B], [[0f32; TRI]; B]);
+    let mut tape: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let mut t: Box<ActorTransposed<ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
+    net.forward(&obs, &mut tape, &mut m, &mut c);
+    let mut whole = Net::zeroed();
+    net.backward(&obs, &mut tape, &cm, &cc, &mut t, &mut whole);
+
+    let o1: [[f32; OBS]; B1] = obs[..B1].try_into().unwrap();
+    let o2: [[f32; OBS]; B2] = obs[B1..].try_into().unwrap();
+    let (dm1, dm2): ([[f32; ACT]; B1], [[f32; ACT]; B2]) =
+        (cm[..B1].try_into().unwrap(), cm[B1..].try_into().unwrap());
+    let (dc1, dc2): ([[f32; TRI]; B1], [[f32; TRI]; B2]) =
+        (cc[..B1].try_into().unwrap(), cc[B1..].try_into().unwrap());
+    let mut t1: Box<ActorTape<B1, H1, H2>> = bytemuck::zeroed_box();
+    let mut t2: Box<ActorTape<B2, H1, H2>> = bytemuck::zeroed_box();
+    net.forward(&o1, &mut t1, &mut [[0.0; ACT]; B1], &mut [[0.0; TRI]; B1]);
+    net.forward(&o2, &mut t2, &mut [[0.0; ACT]; B2], &mut [[0.0; TRI]; B2]);
+    net.transpose_into(&mut t);
+    net.backprop(&mut t1, &dm1, &dc1, &t);
+    net.backprop(&mut t2, &dm2, &dc2, &t);
+    let inputs = ActorGradInputs {
+        obs: &[&o1[..], &o2[..]],
+        h1: &[&t1.h1[..], &t2.h1[..]],
+        h2: &[&t1.h2[..], &t2.h2[..]],
+        d_h1: &[&t1.d_h1[..], &t2.d_h1[..]],
+        d_h2: &[&t1.d_h2[..], &t2.d_h2[..]],
+        d_mean: &[&dm1[..], &dm2[..]],
+        d_chol: &[&dc1[..], &dc2[..]],
+    };
+    let mut blocked = Net::zeroed();
+    let mut parts = blocked.grad_parts(5);
+    assert!(parts.len() >= 6, "{} blocks", parts.len());
+    let mut sq = 0f64;
+    for p in parts.iter_mut().rev() {
+        sq += p.compute(&inputs);
+    }
+    drop(parts);
+    assert!(whole.bits_eq(&blocked), "chunked, blocked gradient differs");
+    let norm = whole.global_norm() as f64;
+    assert!(
+        (sq.sqrt() - norm).abs() <= 1e-6 * norm,
+        "{} vs {norm}",
+        sq.sqrt()
+    );
 }

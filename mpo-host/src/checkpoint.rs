@@ -34,7 +34,7 @@ use crate::tasks::Sizes;
 /// Format identifier in `meta.json`.
 pub const FORMAT: &str = "mpo-checkpoint";
 /// Format version; bumped on any incompatible change.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// The checkpoint's subdirectory in a run directory.
 pub const SUBDIR: &str = "checkpoint";
 /// The checksum file.
@@ -166,27 +166,29 @@ pub fn params_sha256<P: Params, Q: Params>(actor: &P, critic: &Q) -> String {
 /// Tensor names and `[in, out]` shapes of the actor, in tensor order.
 pub fn actor_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
     let tri = s.act * (s.act + 1) / 2;
+    let [h1, h2] = s.actor;
     vec![
-        ("l1.w", vec![s.obs, s.h1]),
-        ("l1.b", vec![s.h1]),
-        ("l2.w", vec![s.h1, s.h2]),
-        ("l2.b", vec![s.h2]),
-        ("mean.w", vec![s.h2, s.act]),
+        ("l1.w", vec![s.obs, h1]),
+        ("l1.b", vec![h1]),
+        ("l2.w", vec![h1, h2]),
+        ("l2.b", vec![h2]),
+        ("mean.w", vec![h2, s.act]),
         ("mean.b", vec![s.act]),
-        ("chol.w", vec![s.h2, tri]),
+        ("chol.w", vec![h2, tri]),
         ("chol.b", vec![tri]),
     ]
 }
 
 /// Tensor names and shapes of the critic, in tensor order.
 pub fn critic_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
+    let [h1, h2] = s.critic;
     vec![
-        ("l1s.w", vec![s.obs, s.h1]),
-        ("l1s.b", vec![s.h1]),
-        ("l1a.w", vec![s.act, s.h1]),
-        ("l2.w", vec![s.h1, s.h2]),
-        ("l2.b", vec![s.h2]),
-        ("out.w", vec![s.h2, 1]),
+        ("l1s.w", vec![s.obs, h1]),
+        ("l1s.b", vec![h1]),
+        ("l1a.w", vec![s.act, h1]),
+        ("l2.w", vec![h1, h2]),
+        ("l2.b", vec![h2]),
+        ("out.w", vec![h2, 1]),
         ("out.b", vec![1]),
     ]
 }
@@ -314,15 +316,19 @@ pub fn save<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
     const CAP: usize,
 >(
     run_dir: &Path,
-    learner: &Learner<OBS, ACT, TRI, H1, H2, B, M, N>,
+    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
     replay: &Replay<CAP, OBS, ACT>,
     meta: &Meta,
 ) -> Result<(), CheckpointError> {
@@ -354,6 +360,7 @@ pub fn save<
     }
     let d = &l.duals;
     opt.f32s("duals.eta".into(), vec![1], &[d.eta]);
+    opt.f32s("duals.eta_penalty".into(), vec![1], &[d.eta_penalty]);
     opt.f32s("duals.alpha_mean_raw".into(), vec![ACT], &d.alpha_mean_raw);
     opt.f32s("duals.alpha_cov_raw".into(), vec![ACT], &d.alpha_cov_raw);
     opt.f32s(
@@ -508,14 +515,18 @@ impl Verified {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
     >(
         &self,
-        learner: &mut Learner<OBS, ACT, TRI, H1, H2, B, M, N>,
+        learner: &mut Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
     ) -> Result<(), CheckpointError> {
         let s = &self.meta.sizes;
         let (al, cl) = (actor_layout(s), critic_layout(s));
@@ -542,15 +553,19 @@ impl Verified {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
     >(
         &self,
-        learner: &mut Learner<OBS, ACT, TRI, H1, H2, B, M, N>,
+        learner: &mut Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
         replay: &mut Replay<CAP, OBS, ACT>,
     ) -> Result<(), CheckpointError> {
         self.load_networks(learner)?;
@@ -580,6 +595,8 @@ impl Verified {
         let mut eta = [0f32];
         r.f32s("duals.eta", &[1], &mut eta)?;
         d.eta = eta[0];
+        r.f32s("duals.eta_penalty", &[1], &mut eta)?;
+        d.eta_penalty = eta[0];
         r.f32s("duals.alpha_mean_raw", &[ACT], &mut d.alpha_mean_raw)?;
         r.f32s("duals.alpha_cov_raw", &[ACT], &mut d.alpha_cov_raw)?;
         r.f32s("duals.moments", &[4, ACT], d.moments.as_flattened_mut())?;

@@ -204,6 +204,10 @@ pub struct TrainArgs {
     /// No progress bar (it is also hidden when stderr is not a terminal).
     #[arg(long)]
     pub no_progress: bool,
+    /// Threads of the learner [default: every available CPU]. The results are bit-identical
+    /// for any number: only the speed changes.
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
     /// Controller placement: `--controller ipc` acts through a controller process in
     /// lockstep, with the same results as in-process training.
     #[command(flatten)]

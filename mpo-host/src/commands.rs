@@ -197,6 +197,13 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
         progress: !args.no_progress,
         interrupt,
         link,
+        threads: match args.threads {
+            Some(0) => {
+                return Err(SettingsError::Invalid("--threads must be at least 1".into()).into());
+            }
+            Some(n) => n,
+            None => crate::pool::Pool::available(),
+        },
     };
     Ok(tasks::visit(&task, &net, TrainVisitor(req))??)
 }
@@ -232,9 +239,13 @@ impl RowVisitor for EvalVisitor {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
@@ -243,7 +254,8 @@ impl RowVisitor for EvalVisitor {
         row: &'static Row,
     ) -> Self::Out {
         let m = &self.v.meta;
-        let learner = load_learner::<OBS, ACT, TRI, H1, H2, B, M, N>(&self.v, row)?;
+        let learner =
+            load_learner::<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>(&self.v, row)?;
         let returns = evaluate(&learner, &m.settings.task, self.seed, self.episodes)?;
         let (return_mean, return_std) = mean_std(&returns);
         Ok(EvalSummary {
@@ -269,9 +281,13 @@ impl RowVisitor for RunVisitor<'_> {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
@@ -279,7 +295,8 @@ impl RowVisitor for RunVisitor<'_> {
         self,
         row: &'static Row,
     ) -> Self::Out {
-        let learner = load_learner::<OBS, ACT, TRI, H1, H2, B, M, N>(&self.v, row)?;
+        let learner =
+            load_learner::<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>(&self.v, row)?;
         Ok(crate::run::run(&learner.live.actor, self.req)?)
     }
 }
@@ -348,9 +365,13 @@ impl RowVisitor for ControllerVisitor {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
@@ -364,7 +385,7 @@ impl RowVisitor for ControllerVisitor {
             let _ = writeln!(out, "ready");
             let _ = out.flush();
         };
-        mpo_link::controller::serve::<OBS, ACT, TRI, H1, H2>(&self.opts, ready)
+        mpo_link::controller::serve::<OBS, ACT, TRI, AH1, AH2>(&self.opts, ready)
             .map_err(|e| Error::Controller(e.to_string()))
     }
 }
@@ -399,15 +420,20 @@ fn load_learner<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
 >(
     v: &Verified,
     row: &'static Row,
-) -> Result<Box<mpo_core::learner::Learner<OBS, ACT, TRI, H1, H2, B, M, N>>, Error> {
+) -> Result<Box<mpo_core::learner::Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>>, Error>
+{
     let m = &v.meta;
     if m.sizes != row.sizes {
         return Err(SettingsError::Mismatch {
@@ -419,8 +445,9 @@ fn load_learner<
         }
         .into());
     }
-    let mut learner: Box<mpo_core::learner::Learner<OBS, ACT, TRI, H1, H2, B, M, N>> =
-        bytemuck::zeroed_box();
+    let mut learner: Box<
+        mpo_core::learner::Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    > = bytemuck::zeroed_box();
     learner
         .init(m.settings.mpo.to_config(), m.settings.seed as u64)
         .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))?;
@@ -458,9 +485,13 @@ impl RowVisitor for ExportVisitor {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
@@ -469,7 +500,8 @@ impl RowVisitor for ExportVisitor {
         row: &'static Row,
     ) -> Self::Out {
         use mpo_core::params::Params;
-        let learner = load_learner::<OBS, ACT, TRI, H1, H2, B, M, N>(&self.v, row)?;
+        let learner =
+            load_learner::<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>(&self.v, row)?;
         let origin = format!(
             "checkpoint {} ({} at {} environment steps, params_sha256 {})",
             self.v.dir.display(),
@@ -494,7 +526,7 @@ impl RowVisitor for ExportVisitor {
             policy,
             obs: OBS,
             act: ACT,
-            hidden: [H1, H2],
+            hidden: [AH1, AH2],
             parameters: learner.live.actor.len(),
         })
     }
@@ -533,33 +565,40 @@ pub fn eval(args: &EvalArgs) -> Result<EvalSummary, Error> {
     )?
 }
 
-/// `mpo tasks`: one line per Control Suite task.
+/// `mpo tasks`: one line per task-table row (every Control Suite task has at least one).
 pub fn tasks_listing() -> String {
     let mut s = format!(
-        "{:<18} {:>4} {:>4}  trainable (net: hidden, batch B, M, N, replay)\n",
-        "task", "obs", "act"
+        "{:<18} {:>3} {:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {:<12} {:>9}\n",
+        "task", "obs", "act", "net", "actor", "critic", "B", "M", "N", "evaluation", "steps"
     );
     for &name in sim_bridge::TASKS {
         let (obs, act) = sim_bridge::task_spec(name)
             .map(|t| (t.obs_dim.to_string(), t.act_dim.to_string()))
             .unwrap_or(("?".into(), "?".into()));
-        let rows: Vec<String> = tasks::ROWS
-            .iter()
-            .filter(|r| r.task == name)
-            .map(|r| {
-                let z = &r.sizes;
-                format!(
-                    "{}: {}-{}, B {}, M {}, N {}, {}",
-                    r.net, z.h1, z.h2, z.batch, z.m, z.n, z.replay_capacity
-                )
-            })
-            .collect();
-        let rows = if rows.is_empty() {
-            "no (not in the task table)".to_string()
-        } else {
-            rows.join("; ")
-        };
-        s.push_str(&format!("{name:<18} {obs:>4} {act:>4}  {rows}\n"));
+        let rows: Vec<&Row> = tasks::ROWS.iter().filter(|r| r.task == name).collect();
+        if rows.is_empty() {
+            s.push_str(&format!(
+                "{name:<18} {obs:>3} {act:>3}  (no row: not trainable)\n"
+            ));
+        }
+        for r in rows {
+            let z = &r.sizes;
+            let eval = match r.mpo.policy_evaluation {
+                settings::PolicyEvaluation::Td => "td".to_string(),
+                settings::PolicyEvaluation::NStep => format!("{}-step", r.mpo.n_step),
+                settings::PolicyEvaluation::Retrace => format!("retrace {}", r.mpo.n_step),
+            };
+            s.push_str(&format!(
+                "{name:<18} {obs:>3} {act:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {eval:<12} {:>9}\n",
+                r.net,
+                format!("{}-{}", z.actor[0], z.actor[1]),
+                format!("{}-{}", z.critic[0], z.critic[1]),
+                z.batch,
+                z.m,
+                z.n,
+                r.steps
+            ));
+        }
     }
     s
 }

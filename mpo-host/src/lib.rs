@@ -12,6 +12,7 @@ pub mod link;
 pub mod metrics;
 pub mod outage_log;
 pub mod plot;
+pub mod pool;
 pub mod run;
 pub mod settings;
 pub mod tasks;

@@ -11,7 +11,7 @@ use mpo_core::learner::UpdateStats;
 use serde::{Deserialize, Serialize};
 
 /// Names of the learner statistics, in column order.
-pub const STAT_NAMES: [&str; 22] = [
+pub const STAT_NAMES: [&str; 24] = [
     "critic_loss",
     "target_mean",
     "q_mean",
@@ -20,6 +20,8 @@ pub const STAT_NAMES: [&str; 22] = [
     "eta",
     "estep_kl",
     "estep_iterations",
+    "eta_penalty",
+    "action_excess",
     "alpha_mean",
     "alpha_cov",
     "kl_mean",
@@ -37,7 +39,7 @@ pub const STAT_NAMES: [&str; 22] = [
 ];
 
 /// The statistics as numbers in [`STAT_NAMES`] order.
-pub fn stat_values(s: &UpdateStats) -> [f64; 22] {
+pub fn stat_values(s: &UpdateStats) -> [f64; 24] {
     [
         s.critic_loss as f64,
         s.target_mean as f64,
@@ -47,6 +49,8 @@ pub fn stat_values(s: &UpdateStats) -> [f64; 22] {
         s.eta as f64,
         s.estep_kl as f64,
         s.estep_iterations as f64,
+        s.eta_penalty as f64,
+        s.action_excess as f64,
         s.alpha_mean as f64,
         s.alpha_cov as f64,
         s.kl_mean as f64,

@@ -9,6 +9,7 @@
 //! by one rounding, identically for fresh and resumed runs.
 
 use mpo_core::config::MpoConfig;
+use mpo_core::replay::{BatchMode, MAX_NSTEP};
 use serde::{Deserialize, Serialize};
 
 use crate::tasks::Sizes;
@@ -53,15 +54,28 @@ pub struct Schedule {
     pub eval_interval: u64,
     /// Evaluation episodes, each on a fresh environment with its own evaluation seed.
     pub eval_episodes: u32,
-    /// Weight `c` of the action penalty subtracted from the stored (training) reward:
-    /// `r - c * sum_k (a_k - clip(a_k, -1, 1))^2`. The environment clips actions, so
-    /// without it the critic is flat outside the bounds and the policy mean drifts outwards
-    /// (the problem Acme's action penalization solves; this is its scalarised form).
-    /// Evaluation returns are the environment's rewards, unpenalised.
+    /// Weight `c` of a penalty subtracted from the stored (training) reward:
+    /// `r - c * sum_k (a_k - clip(a_k, -1, 1))^2`; 0 (the default everywhere) stores the
+    /// environment's reward. The learner's own remedy for out-of-range actions is
+    /// `mpo.action_penalization`; this scalarised form is kept for comparison
+    /// (docs/training.md). Evaluation returns are always the environment's rewards.
     pub action_penalty: f64,
 }
 
-/// [`MpoConfig`] as written in configuration files (see the module doc for the `f64`).
+/// How the critic's targets are formed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PolicyEvaluation {
+    /// TD(0) expected SARSA on single transitions (the report's).
+    Td,
+    /// `n_step`-step transitions (Acme's default, n = 5), then expected SARSA.
+    NStep,
+    /// Retrace (the paper's) over `n_step` consecutive transitions.
+    Retrace,
+}
+
+/// [`MpoConfig`] as written in configuration files (see the module doc for the `f64`), plus
+/// the choice of policy evaluation (which decides how batches are drawn from the replay).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 #[allow(missing_docs)]
@@ -85,6 +99,15 @@ pub struct MpoSettings {
     pub alpha_cov_init: f64,
     pub estep_tol: f64,
     pub estep_max_iter: u32,
+    /// `td`, `n-step` or `retrace`.
+    pub policy_evaluation: PolicyEvaluation,
+    /// Steps of an n-step transition, or the length of a Retrace sequence (at most the
+    /// row's `seq`); ignored by `td`.
+    pub n_step: u32,
+    pub action_penalization: bool,
+    pub eps_penalty: f64,
+    pub shared_samples: bool,
+    pub target_tau: f64,
 }
 
 impl MpoSettings {
@@ -109,7 +132,29 @@ impl MpoSettings {
         alpha_cov_init: 1000.0,
         estep_tol: 1e-3,
         estep_max_iter: 50,
+        policy_evaluation: PolicyEvaluation::Td,
+        n_step: 1,
+        action_penalization: false,
+        eps_penalty: 1e-3,
+        shared_samples: false,
+        target_tau: 0.0,
     };
+
+    /// How [`mpo_core::replay::Replay::fill_batch`] draws batches for this configuration.
+    pub fn batch_mode(&self) -> BatchMode {
+        let gamma = self.gamma as f32;
+        match self.policy_evaluation {
+            PolicyEvaluation::Td => BatchMode::OneStep { n: 1, gamma },
+            PolicyEvaluation::NStep => BatchMode::OneStep {
+                n: self.n_step,
+                gamma,
+            },
+            PolicyEvaluation::Retrace => BatchMode::Sequences {
+                len: self.n_step,
+                gamma,
+            },
+        }
+    }
 
     /// The learner's configuration (one `f64 -> f32` rounding per field).
     // The trailing `..REPORT` keeps this compiling if the core gains a field (it then takes
@@ -136,6 +181,14 @@ impl MpoSettings {
             alpha_cov_init: self.alpha_cov_init as f32,
             estep_tol: self.estep_tol,
             estep_max_iter: self.estep_max_iter,
+            sequence_len: match self.policy_evaluation {
+                PolicyEvaluation::Retrace => self.n_step,
+                PolicyEvaluation::Td | PolicyEvaluation::NStep => 1,
+            },
+            action_penalization: self.action_penalization,
+            eps_penalty: self.eps_penalty as f32,
+            shared_samples: self.shared_samples,
+            target_tau: self.target_tau as f32,
             ..MpoConfig::REPORT
         }
     }
@@ -337,8 +390,29 @@ impl Settings {
                 s.warmup_steps, sizes.batch
             ));
         }
-        self.mpo
-            .to_config()
+        let m = &self.mpo;
+        match m.policy_evaluation {
+            PolicyEvaluation::NStep if m.n_step == 0 || m.n_step as usize > MAX_NSTEP => {
+                return bad(format!(
+                    "mpo.n_step = {} must be in 1..={MAX_NSTEP} for n-step returns",
+                    m.n_step
+                ));
+            }
+            PolicyEvaluation::Retrace if m.n_step == 0 || m.n_step as usize > sizes.seq => {
+                return bad(format!(
+                    "mpo.n_step = {} is the Retrace sequence length: it must be in 1..={} (the `{}`/`{}` row's `seq`)",
+                    m.n_step, sizes.seq, self.task, self.net
+                ));
+            }
+            _ => {}
+        }
+        if m.shared_samples && sizes.m != sizes.n {
+            return bad(format!(
+                "mpo.shared_samples needs M = N; the `{}`/`{}` row has M = {}, N = {}",
+                self.task, self.net, sizes.m, sizes.n
+            ));
+        }
+        m.to_config()
             .validate()
             .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))
     }

@@ -1,15 +1,16 @@
 //! The task table: one row per (task, network variant), mapping the name to a concrete,
 //! monomorphised learner type and to the run's default schedule and hyperparameters.
 //!
-//! Sizes are const generics of the learner (observation, action, hidden widths, batch `B`,
-//! E-step samples `M`, next-action samples `N`, replay capacity), so they are fixed here at
-//! compile time and cannot be changed by configuration; everything else in a row is a
-//! default that `--config` and flags override. Each row costs one instantiation of the
-//! learner, so the table holds the tasks we train rather than every Control Suite task.
+//! Sizes are const generics of the learner (observation, action, the actor's and the critic's
+//! hidden widths, batch `B` and its chunks, the longest replayed sequence, E-step samples `M`,
+//! next-action samples `N`, replay capacity), so they are fixed here at compile time and
+//! cannot be changed by configuration; everything else in a row is a default that `--config`
+//! and flags override. Each distinct list of sizes costs one instantiation of the learner and
+//! the trainer; rows that share sizes (the three walker tasks, the two hopper tasks) share it.
 
 use serde::{Deserialize, Serialize};
 
-use crate::settings::{MpoSettings, Schedule};
+use crate::settings::{MpoSettings, PolicyEvaluation, Schedule};
 
 /// A row's compile-time sizes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -19,15 +20,20 @@ pub struct Sizes {
     pub obs: usize,
     /// Action size.
     pub act: usize,
-    /// First hidden width (actor and critic).
-    pub h1: usize,
-    /// Second hidden width.
-    pub h2: usize,
-    /// Batch size `B`.
+    /// The policy's hidden widths.
+    pub actor: [usize; 2],
+    /// The critic's hidden widths.
+    pub critic: [usize; 2],
+    /// Batch size `B` (rows per update).
     pub batch: usize,
+    /// Chunks the batch is split into for threads (`B / chunks` rows each; results do not
+    /// depend on it).
+    pub chunks: usize,
+    /// Longest replayed sequence (the limit of `mpo.n_step` with Retrace).
+    pub seq: usize,
     /// E-step action samples per state `M`.
     pub m: usize,
-    /// Next-action samples per next state `N` (TD targets).
+    /// Next-action samples per next state `N` (policy-evaluation targets).
     pub n: usize,
     /// Replay capacity in transitions.
     pub replay_capacity: usize,
@@ -54,14 +60,20 @@ pub struct Row {
 pub trait RowVisitor {
     /// Result.
     type Out;
-    /// Runs with the row's types (`TRI = ACT (ACT + 1) / 2`, `CAP` replay capacity).
+    /// Runs with the row's types: `TRI = ACT (ACT + 1) / 2`, actor widths `AH1`, `AH2`, critic
+    /// widths `QH1`, `QH2`, `C` chunks of `BC` rows, sequences of up to `L`, `M` and `N`
+    /// samples, `CAP` replay capacity.
     fn visit<
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
@@ -83,15 +95,23 @@ pub struct UnknownTask {
     pub valid: String,
 }
 
+/// Rows are written `"task" / "net": [OBS, ACT, TRI; actor (H1, H2); critic (H1, H2); batch
+/// B in C chunks; seq L; M, N; replay CAP]`. Rows with equal sizes share one instantiation
+/// of the learner (the compiler monomorphises each distinct list once).
 macro_rules! table {
-    ($( $task:literal / $net:literal : [$obs:literal, $act:literal, $tri:literal, $h1:literal, $h2:literal,
-         $b:literal, $m:literal, $n:literal, $cap:literal], steps $steps:expr, $sched:expr, $mpo:expr; )*) => {
+    ($( $task:literal / $net:literal : [$obs:literal, $act:literal, $tri:literal;
+         actor ($ah1:literal, $ah2:literal); critic ($qh1:literal, $qh2:literal);
+         batch $b:literal in $c:literal; seq $l:literal; $m:literal, $n:literal; replay $cap:literal],
+         steps $steps:expr, $sched:expr, $mpo:expr; )*) => {
         /// Every row, in table order.
         pub static ROWS: &[Row] = &[$(
             Row {
                 task: $task,
                 net: $net,
-                sizes: Sizes { obs: $obs, act: $act, h1: $h1, h2: $h2, batch: $b, m: $m, n: $n, replay_capacity: $cap },
+                sizes: Sizes {
+                    obs: $obs, act: $act, actor: [$ah1, $ah2], critic: [$qh1, $qh2],
+                    batch: $b, chunks: $c, seq: $l, m: $m, n: $n, replay_capacity: $cap,
+                },
                 steps: $steps,
                 schedule: $sched,
                 mpo: $mpo,
@@ -104,18 +124,27 @@ macro_rules! table {
             $(
                 if task == $task && net == $net {
                     const { assert!($tri == $act * ($act + 1) / 2) };
-                    return Ok(v.visit::<$obs, $act, $tri, $h1, $h2, $b, $m, $n, $cap>(&ROWS[i]));
+                    const { assert!($b % $c == 0, "the batch must split into equal chunks") };
+                    return Ok(v.visit::<$obs, $act, $tri, $ah1, $ah2, $qh1, $qh2, { $b / $c }, $c, $l, $m, $n, $cap>(&ROWS[i]));
                 }
                 i += 1;
             )*
             let _ = i;
-            Err(UnknownTask {
-                task: task.to_string(),
-                net: net.to_string(),
-                valid: ROWS.iter().map(|r| format!("{} (net {})", r.task, r.net)).collect::<Vec<_>>().join(", "),
-            })
+            Err(unknown(task, net))
         }
     };
+}
+
+fn unknown(task: &str, net: &str) -> UnknownTask {
+    UnknownTask {
+        task: task.to_string(),
+        net: net.to_string(),
+        valid: ROWS
+            .iter()
+            .map(|r| format!("{} (net {})", r.task, r.net))
+            .collect::<Vec<_>>()
+            .join(", "),
+    }
 }
 
 /// The report's hyperparameters with the changes that make cartpole learn within budget
@@ -123,6 +152,8 @@ macro_rules! table {
 const CARTPOLE_MPO: MpoSettings = MpoSettings {
     eps_mean: 0.01,
     actor_clip: 40.0,
+    action_penalization: true,
+    eps_penalty: 0.1,
     ..MpoSettings::REPORT
 };
 
@@ -132,33 +163,54 @@ const CARTPOLE_SCHEDULE: Schedule = Schedule {
     updates_per_interval: 1,
     eval_interval: 5_000,
     eval_episodes: 10,
-    action_penalty: 1.0,
+    action_penalty: 0.0,
 };
 
-/// Acme-like settings for the larger tasks.
-const HOPPER_MPO: MpoSettings = MpoSettings {
+/// Settings for the harder tasks (docs/training.md: the tuning log and ablations).
+const SUITE_MPO: MpoSettings = MpoSettings {
     eps_mean: 0.01,
     actor_clip: 40.0,
+    policy_evaluation: PolicyEvaluation::NStep,
+    n_step: 5,
+    action_penalization: true,
+    eps_penalty: 0.1,
     ..MpoSettings::REPORT
 };
 
-const LONG_SCHEDULE: Schedule = Schedule {
+const SUITE_SCHEDULE: Schedule = Schedule {
     warmup_steps: 10_000,
-    update_interval: 4,
+    update_interval: 2,
     updates_per_interval: 1,
     eval_interval: 20_000,
     eval_episodes: 10,
-    action_penalty: 1.0,
+    action_penalty: 0.0,
 };
 
 table! {
-    "cartpole-balance" / "default": [5, 1, 1, 64, 64, 128, 20, 20, 100_000], steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
-    "cartpole-balance" / "tiny": [5, 1, 1, 32, 32, 64, 10, 10, 50_000], steps 4_000,
-        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 1.0 },
+    "cartpole-balance" / "default": [5, 1, 1; actor (64, 64); critic (64, 64); batch 128 in 2; seq 8; 20, 20; replay 100_000],
+        steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
+    "cartpole-balance" / "tiny": [5, 1, 1; actor (32, 32); critic (32, 32); batch 64 in 2; seq 4; 10, 10; replay 50_000],
+        steps 4_000,
+        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0 },
         CARTPOLE_MPO;
-    "acrobot-swingup" / "default": [6, 1, 1, 128, 128, 128, 20, 20, 1_000_000], steps 1_000_000, LONG_SCHEDULE, HOPPER_MPO;
-    "hopper-stand" / "default": [15, 4, 10, 128, 128, 128, 20, 20, 1_000_000], steps 1_000_000, LONG_SCHEDULE, HOPPER_MPO;
-    "hopper-hop" / "default": [15, 4, 10, 128, 128, 128, 20, 20, 1_000_000], steps 1_000_000, LONG_SCHEDULE, HOPPER_MPO;
+    "cartpole-swingup" / "default": [5, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
+    "pendulum-swingup" / "default": [3, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
+    "acrobot-swingup" / "default": [6, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "hopper-stand" / "default": [15, 4, 10; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "hopper-hop" / "default": [15, 4, 10; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "walker-stand" / "default": [24, 6, 21; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 300_000, SUITE_SCHEDULE, SUITE_MPO;
+    "walker-walk" / "default": [24, 6, 21; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 500_000, SUITE_SCHEDULE, SUITE_MPO;
+    "walker-run" / "default": [24, 6, 21; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "cheetah-run" / "default": [17, 6, 21; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
 }
 
 /// The default network variant.
@@ -170,13 +222,5 @@ pub const DEFAULT_TASK: &str = "cartpole-balance";
 pub fn row(task: &str, net: &str) -> Result<&'static Row, UnknownTask> {
     ROWS.iter()
         .find(|r| r.task == task && r.net == net)
-        .ok_or_else(|| UnknownTask {
-            task: task.to_string(),
-            net: net.to_string(),
-            valid: ROWS
-                .iter()
-                .map(|r| format!("{} (net {})", r.task, r.net))
-                .collect::<Vec<_>>()
-                .join(", "),
-        })
+        .ok_or_else(|| unknown(task, net))
 }

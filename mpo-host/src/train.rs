@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mpo_core::learner::{Learner, UpdateError};
-use mpo_core::replay::{Replay, Transition};
+use mpo_core::replay::{BatchMode, Replay, Transition};
 use mpo_core::rng::Rng;
 use serde::Serialize;
 use sim_bridge::{Environment, SimError};
@@ -24,6 +24,7 @@ use crate::checkpoint::{self, CheckpointError, Counters, Meta, Verified};
 use crate::eval::{evaluate, evaluate_with, mean_std};
 use crate::link::{Link, LinkOptions, LinkReport, LinkSetupError};
 use crate::metrics::{self, MetricsRow, StatsAccumulator};
+use crate::pool::PoolParallel;
 use crate::settings::{Schedule, Settings};
 use crate::tasks::{Row, RowVisitor};
 
@@ -123,6 +124,8 @@ pub struct TrainRequest<'a> {
     pub interrupt: &'a AtomicBool,
     /// Act through a controller process (`--controller ipc`) instead of in-process.
     pub link: Option<LinkOptions>,
+    /// Threads of the learner (results do not depend on it).
+    pub threads: usize,
 }
 
 /// Why one step of [`Trainer::collect`] failed.
@@ -141,15 +144,19 @@ pub struct Trainer<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
     const CAP: usize,
 > {
     /// The learner.
-    pub learner: Box<Learner<OBS, ACT, TRI, H1, H2, B, M, N>>,
+    pub learner: Box<Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>>,
     /// Experience.
     pub replay: Box<Replay<CAP, OBS, ACT>>,
     env: Box<dyn Environment>,
@@ -167,12 +174,13 @@ pub struct Trainer<
     obs64: [f64; OBS],
     next64: [f64; OBS],
     act64: [f64; ACT],
-    idx: Box<[usize; B]>,
     /// Learner statistics since the last metrics row.
     pub stats: StatsAccumulator,
     schedule: Schedule,
-    gamma: f32,
+    batch_mode: BatchMode,
     action_penalty: f32,
+    /// Runs the learner's work items on `--threads` threads.
+    pool: PoolParallel,
     /// The controller process, when acting through one (`--controller ipc`).
     pub link: Option<Link>,
     /// The controller's policy is older than the learner's (pushed before the next request).
@@ -183,17 +191,26 @@ impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
     const CAP: usize,
-> Trainer<OBS, ACT, TRI, H1, H2, B, M, N, CAP>
+> Trainer<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>
 {
     /// A fresh run (networks initialised from the seed, empty replay), or the state of
     /// `resume`.
-    pub fn new(settings: &Settings, resume: Option<&Verified>) -> Result<Self, TrainError> {
+    /// `threads` runs the learner's work (any count gives the same bits).
+    pub fn new(
+        settings: &Settings,
+        resume: Option<&Verified>,
+        threads: usize,
+    ) -> Result<Self, TrainError> {
         let spec = sim_bridge::task_spec(&settings.task)?;
         if spec.obs_dim != OBS || spec.act_dim != ACT {
             return Err(TrainError::Internal(format!(
@@ -201,7 +218,8 @@ impl<
                 settings.task, spec.obs_dim, spec.act_dim
             )));
         }
-        let mut learner: Box<Learner<OBS, ACT, TRI, H1, H2, B, M, N>> = bytemuck::zeroed_box();
+        let mut learner: Box<Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>> =
+            bytemuck::zeroed_box();
         learner
             .init(settings.mpo.to_config(), settings.seed as u64)
             .map_err(|e| crate::settings::SettingsError::Invalid(format!("mpo: {e}")))?;
@@ -250,10 +268,13 @@ impl<
             obs64,
             next64: [0.0; OBS],
             act64: [0.0; ACT],
-            idx: Box::new([0; B]),
             stats,
             schedule: settings.schedule,
-            gamma: settings.mpo.to_config().gamma,
+            batch_mode: settings.mpo.batch_mode(),
+            pool: PoolParallel::new(threads).map_err(|source| TrainError::Io {
+                path: "learner threads".into(),
+                source,
+            })?,
             action_penalty: settings.schedule.action_penalty as f32,
             link: None,
             params_dirty: true,
@@ -393,24 +414,18 @@ impl<
         Ok(())
     }
 
-    /// One learner update on a uniformly sampled batch.
-    fn update(&mut self) -> Result<(), String> {
+    /// Draws the learner's next batch from the replay, as the configuration's policy
+    /// evaluation needs (n-step transitions or sequences).
+    pub fn fill_batch(&mut self) -> Result<(), String> {
         self.replay
-            .sample_indices(&mut self.sampler, &mut self.idx[..])
-            .map_err(|e| e.to_string())?;
-        let b = &mut self.learner.batch;
-        self.replay.gather(
-            &self.idx[..],
-            &mut b.obs,
-            &mut b.action,
-            &mut b.reward,
-            &mut b.next_obs,
-            &mut b.bootstrap,
-        );
-        for x in b.bootstrap.iter_mut() {
-            *x *= self.gamma;
-        }
-        match self.learner.update() {
+            .fill_batch(&mut self.sampler, &mut self.learner.batch, self.batch_mode)
+            .map_err(|e| e.to_string())
+    }
+
+    /// One learner update on a batch drawn as the configuration's policy evaluation needs.
+    fn update(&mut self) -> Result<(), String> {
+        self.fill_batch()?;
+        match self.learner.update_with(&self.pool) {
             Ok(stats) => {
                 self.params_dirty = true;
                 if let Some((name, v)) = metrics::first_non_finite(&stats) {
@@ -443,9 +458,13 @@ impl RowVisitor for TrainVisitor<'_> {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const H1: usize,
-        const H2: usize,
-        const B: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
         const M: usize,
         const N: usize,
         const CAP: usize,
@@ -453,7 +472,7 @@ impl RowVisitor for TrainVisitor<'_> {
         self,
         row: &'static Row,
     ) -> Self::Out {
-        run::<OBS, ACT, TRI, H1, H2, B, M, N, CAP>(row, self.0)
+        run::<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>(row, self.0)
     }
 }
 
@@ -469,9 +488,13 @@ fn run<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const H1: usize,
-    const H2: usize,
-    const B: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
     const M: usize,
     const N: usize,
     const CAP: usize,
@@ -481,8 +504,11 @@ fn run<
 ) -> Result<Summary, TrainError> {
     let settings = req.settings;
     let out = req.out;
-    let mut t =
-        Trainer::<OBS, ACT, TRI, H1, H2, B, M, N, CAP>::new(&settings, req.resume.as_ref())?;
+    let mut t = Trainer::<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>::new(
+        &settings,
+        req.resume.as_ref(),
+        req.threads,
+    )?;
     if let Some(opts) = &req.link {
         let link = Link::start(&settings.task, &settings.net, OBS, ACT, opts)?;
         eprintln!(
@@ -536,7 +562,7 @@ fn run<
     let (mut mark_t, mut mark_steps, mut mark_updates) =
         (wall(&started), t.env_steps, t.learner.updates);
 
-    let evaluate_now = |t: &mut Trainer<OBS, ACT, TRI, H1, H2, B, M, N, CAP>,
+    let evaluate_now = |t: &mut Trainer<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>,
                         metrics_rows: &mut Vec<MetricsRow>,
                         mark: (f64, u64, u64)|
      -> Result<(f64, f64), TrainError> {
@@ -580,7 +606,7 @@ fn run<
         Ok(())
     };
 
-    let save = |t: &Trainer<OBS, ACT, TRI, H1, H2, B, M, N, CAP>,
+    let save = |t: &Trainer<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>,
                 rows: &[MetricsRow],
                 wall_s: f64|
      -> Result<(), TrainError> {

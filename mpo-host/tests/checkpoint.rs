@@ -9,7 +9,7 @@ use mpo_host::train::Trainer;
 use safetensors::SafeTensors;
 
 /// The `cartpole-balance`/`tiny` row's types.
-type Tiny = Trainer<5, 1, 1, 32, 32, 64, 10, 10, 50_000>;
+type Tiny = Trainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
 
 #[test]
 fn restore_then_save_gives_the_same_bytes() {
@@ -23,7 +23,7 @@ fn restore_then_save_gives_the_same_bytes() {
         v.meta.params_sha256,
         summary["params_sha256"].as_str().unwrap()
     );
-    let t = Tiny::new(&v.meta.settings, Some(&v)).unwrap();
+    let t = Tiny::new(&v.meta.settings, Some(&v), 1).unwrap();
     assert_eq!(t.env_steps, 2000);
     assert_eq!(t.learner.updates, v.meta.updates);
     assert_eq!(t.replay.len(), 2000);

@@ -496,8 +496,16 @@ fn link_flags_need_the_ipc_controller() {
             "nope",
         ),
         (
-            &["controller", "--run", "x-1", "--task", "walker-walk"],
-            "walker-walk",
+            &[
+                "controller",
+                "--run",
+                "x-1",
+                "--task",
+                "walker-walk",
+                "--net",
+                "huge",
+            ],
+            "net `huge`",
         ),
         (&["controller", "--run", "bad/name"], "bad/name"),
     ] {

@@ -12,7 +12,7 @@ use mpo_core::rng::Rng;
 use mpo_host::checkpoint;
 
 /// The `cartpole-balance`/`tiny` row's learner.
-type TinyLearner = mpo_core::learner::Learner<5, 1, 1, 32, 32, 64, 10, 10>;
+type TinyLearner = mpo_core::learner::Learner<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10>;
 
 #[test]
 fn exported_checkpoint_runs_on_the_firmware_bit_for_bit() {

@@ -28,15 +28,33 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static A: Counting = Counting;
 
+/// The tiny cartpole row's trainer type.
+type Tiny = Trainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
+
 #[test]
 fn collect_and_learn_allocate_nothing() {
+    use mpo_host::settings::PolicyEvaluation;
     let row = tasks::row("cartpole-balance", "tiny").unwrap();
-    let settings = defaults(row);
-    let mut t = Trainer::<5, 1, 1, 32, 32, 64, 10, 10, 50_000>::new(&settings, None).unwrap();
-    let before = ALLOCS.load(Ordering::SeqCst);
-    // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).
-    t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
-    let after = ALLOCS.load(Ordering::SeqCst);
-    assert!(t.learner.updates >= 400, "updates {}", t.learner.updates);
-    assert_eq!(after - before, 0, "allocations inside collect");
+    // Every policy evaluation, on two learner threads (the pool's workers count too: the
+    // counter is global, and this binary runs no other test).
+    for (evaluation, n) in [
+        (PolicyEvaluation::Td, 1),
+        (PolicyEvaluation::NStep, 3),
+        (PolicyEvaluation::Retrace, 4),
+    ] {
+        let mut settings = defaults(row);
+        settings.mpo.policy_evaluation = evaluation;
+        settings.mpo.n_step = n;
+        let mut t = Tiny::new(&settings, None, 2).unwrap();
+        let before = ALLOCS.load(Ordering::SeqCst);
+        // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).
+        t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
+        let after = ALLOCS.load(Ordering::SeqCst);
+        assert!(t.learner.updates >= 400, "updates {}", t.learner.updates);
+        assert_eq!(
+            after - before,
+            0,
+            "allocations inside collect ({evaluation:?})"
+        );
+    }
 }

@@ -14,12 +14,11 @@ use std::time::Duration;
 use mpo_core::config::MpoConfig;
 use mpo_core::learner::Learner;
 use mpo_core::params::fingerprint;
-use mpo_core::replay::{Replay, Transition};
+use mpo_core::replay::{BatchMode, Replay, Transition};
 use mpo_core::rng::Rng;
 use mpo_link::{Plant, PlantConfig, RunId, WaitMode};
 
-const B: usize = 32;
-type L = Learner<5, 1, 1, 64, 64, B, 20, 10>;
+type L = Learner<5, 1, 1, 64, 64, 64, 64, 16, 2, 1, 20, 10>;
 
 /// 1-D point mass, velocity control: observation `[x, 0, 0, 0, 0]`, reward `-x^2 - 0.1 a^2`.
 struct PointMass {
@@ -61,7 +60,6 @@ fn train(mut acting: Acting, steps: usize, warmup: usize) -> (Box<L>, u64) {
     if let Acting::Ipc(plant) = &mut acting {
         plant.push_params(&l.live.actor).unwrap();
     }
-    let mut idx = [0usize; B];
     let mut trace = 0xcbf2_9ce4_8422_2325u64;
     let mut t = 0;
     for step in 0..steps {
@@ -98,20 +96,11 @@ fn train(mut acting: Acting, steps: usize, warmup: usize) -> (Box<L>, u64) {
             t = 0;
         }
         if step >= warmup {
-            replay.sample_indices(&mut rng, &mut idx).unwrap();
-            let b = &mut l.batch;
-            let mut disc = [0f32; B];
-            replay.gather(
-                &idx,
-                &mut b.obs,
-                &mut b.action,
-                &mut b.reward,
-                &mut b.next_obs,
-                &mut disc,
-            );
-            for (bootstrap, d) in b.bootstrap.iter_mut().zip(disc) {
-                *bootstrap = cfg.gamma * d;
-            }
+            let mode = BatchMode::OneStep {
+                n: 1,
+                gamma: cfg.gamma,
+            };
+            replay.fill_batch(&mut rng, &mut l.batch, mode).unwrap();
             l.update().unwrap();
             if let Acting::Ipc(plant) = &mut acting {
                 plant.push_params(&l.live.actor).unwrap();

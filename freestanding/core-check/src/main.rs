@@ -1,6 +1,7 @@
 //! Freestanding check binary: `_start` -> run the core's self-check -> print -> exit.
 //!
-//! Output (stdout): `selfcheck <seed> <steps> <hex>` and `forward <seed> <hex>`, one per line.
+//! Output (stdout): `selfcheck <seed> <steps> <hex>`, `learner <seed> <updates> <hex>` and
+//! `forward <seed> <hex>`, one per line.
 #![no_std]
 #![no_main]
 
@@ -14,6 +15,7 @@ use mpo_core::selfcheck::{SelfCheck, forward_checksum};
 
 const SEED: u64 = 42;
 const STEPS: usize = 200;
+const UPDATES: usize = 6;
 
 mpo_rt::entry!(main);
 
@@ -29,6 +31,12 @@ fn main() -> i32 {
     line.push_dec(STEPS as u64);
     line.push(b" ");
     line.push_hex(fp);
+    line.push(b"\nlearner ");
+    line.push_dec(SEED);
+    line.push(b" ");
+    line.push_dec(UPDATES as u64);
+    line.push(b" ");
+    line.push_hex(check.learner(SEED, UPDATES));
     line.push(b"\nforward ");
     line.push_dec(SEED);
     line.push(b" ");
