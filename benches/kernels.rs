@@ -230,6 +230,16 @@ fn layer_rows(rows: &mut Vec<Row>) {
         secs,
         flops,
     });
+    // The learner's shape: one chunk of 64 rows with the ReLU fused in.
+    let secs = time(200, || {
+        l.forward_relu(&x[..64], &mut y[..64]);
+        black_box(&y[0][0]);
+    });
+    rows.push(Row {
+        name: "layer 256x256, 64 rows: forward with ReLU".into(),
+        secs,
+        flops: flops / 4.0,
+    });
     let mut wt: Box<[[f32; N]; N]> = bytemuck::zeroed_box();
     let secs = time(50, || {
         l.backward(&*x, &*y, &mut g);

@@ -72,6 +72,69 @@ pub fn adam_step<P: Params>(
     }
 }
 
+/// A block of at most this many scalars is one work item of [`adam_step_with`].
+#[cfg(feature = "train")]
+const BLOCK: usize = 16_384;
+
+/// One work item of [`adam_step_with`]: matching pieces of parameters, gradients and moments.
+#[cfg(feature = "train")]
+type Piece<'a> = (&'a mut [f32], &'a [f32], &'a mut [f32], &'a mut [f32]);
+
+/// [`adam_step`] with the gradients multiplied by `scale` (gradient clipping folded in), the
+/// tensors cut into blocks of at most 16,384 scalars and the blocks spread by `par`
+/// (elementwise, so the bits are those of the serial step).
+#[cfg(feature = "train")]
+#[allow(clippy::too_many_arguments)]
+pub fn adam_step_with<P: Params, Q: crate::parallel::Parallel>(
+    par: &Q,
+    cfg: &AdamConfig,
+    state: &mut AdamState,
+    params: &mut P,
+    grads: &P,
+    scale: f32,
+    m: &mut P,
+    v: &mut P,
+) {
+    state.advance(cfg);
+    let mut pieces: heapless::Vec<Piece<'_>, 64> = heapless::Vec::new();
+    let mut ps: heapless::Vec<&mut [f32], 64> = heapless::Vec::new();
+    let mut ms: heapless::Vec<&mut [f32], 64> = heapless::Vec::new();
+    let mut vs: heapless::Vec<&mut [f32], 64> = heapless::Vec::new();
+    for (list, x) in [(&mut ps, params), (&mut ms, m), (&mut vs, v)] {
+        x.visit_mut(&mut |t| {
+            for c in t.chunks_mut(BLOCK) {
+                assert!(list.push(c).is_ok(), "more than 64 Adam blocks");
+            }
+        });
+    }
+    for (k, ((p, m), v)) in ps.into_iter().zip(ms).zip(vs).enumerate() {
+        // The gradient's tensors cut the same way.
+        let (t, off) = block_of(grads, k);
+        let g = &grads.tensor(t)[off..off + p.len()];
+        assert!(
+            pieces.push((p, g, m, v)).is_ok(),
+            "more than 64 Adam blocks"
+        );
+    }
+    let st = *state;
+    par.for_each(&mut pieces, &|_, (p, g, m, v)| {
+        st.apply_scaled(cfg, p, g, scale, m, v)
+    });
+}
+
+/// Tensor and offset of block `k` when every tensor of `x` is cut into [`BLOCK`]s.
+#[cfg(feature = "train")]
+fn block_of<P: Params>(x: &P, mut k: usize) -> (usize, usize) {
+    for t in 0..P::TENSORS {
+        let blocks = x.tensor(t).len().div_ceil(BLOCK);
+        if k < blocks {
+            return (t, k * BLOCK);
+        }
+        k -= blocks;
+    }
+    panic!("block index past the end")
+}
+
 impl AdamState {
     /// Counts one step (call once per step, before [`AdamState::apply`]).
     pub fn advance(&mut self, cfg: &AdamConfig) {
@@ -82,11 +145,25 @@ impl AdamState {
 
     /// Applies the current step to one flat tensor and its moments.
     pub fn apply(&self, cfg: &AdamConfig, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
+        self.apply_scaled(cfg, p, g, 1.0, m, v);
+    }
+
+    /// [`AdamState::apply`] with the gradient `g * scale`.
+    pub fn apply_scaled(
+        &self,
+        cfg: &AdamConfig,
+        p: &mut [f32],
+        g: &[f32],
+        scale: f32,
+        m: &mut [f32],
+        v: &mut [f32],
+    ) {
         let c1 = 1.0 / (1.0 - self.beta1_pow);
         let c2 = 1.0 / (1.0 - self.beta2_pow);
         for i in 0..p.len() {
-            m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * g[i];
-            v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (g[i] * g[i]);
+            let gi = g[i] * scale;
+            m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * gi;
+            v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (gi * gi);
             let m_hat = m[i] * c1;
             let v_hat = v[i] * c2;
             p[i] -= cfg.lr * m_hat / (libm::sqrtf(v_hat) + cfg.eps);
@@ -140,6 +217,37 @@ mod tests {
             }
         }
         assert_eq!(st.t, 1);
+    }
+
+    #[test]
+    fn blocked_scaled_step_equals_scaling_then_the_plain_step() {
+        // Tensors larger than a block, so they are split.
+        type P = Linear<300, 70>;
+        let mut rng = crate::rng::Rng::seed_from_u64(3);
+        let (mut a, mut g) = (P::zeroed(), P::zeroed());
+        a.init_uniform(&mut rng);
+        g.init_uniform(&mut rng);
+        let mut b = a.clone();
+        let (mut ma, mut va, mut mb, mut vb) = (P::zeroed(), P::zeroed(), P::zeroed(), P::zeroed());
+        let (mut sa, mut sb) = (AdamState::default(), AdamState::default());
+        let cfg = AdamConfig::with_lr(1e-3);
+        for _ in 0..3 {
+            let mut gs = g.clone();
+            gs.scale(0.37);
+            adam_step(&cfg, &mut sa, &mut a, &gs, &mut ma, &mut va);
+            adam_step_with(
+                &crate::parallel::Serial,
+                &cfg,
+                &mut sb,
+                &mut b,
+                &g,
+                0.37,
+                &mut mb,
+                &mut vb,
+            );
+        }
+        assert!(a.bits_eq(&b) && ma.bits_eq(&mb) && va.bits_eq(&vb));
+        assert_eq!(sa, sb);
     }
 
     #[test]

@@ -33,7 +33,7 @@
 use bytemuck::Zeroable;
 
 use crate::actor::{Actor, ActorGradInputs, ActorTape, ActorTransposed};
-use crate::adam::{AdamConfig, AdamState, adam_step};
+use crate::adam::{AdamConfig, AdamState, adam_step_with};
 use crate::config::{ConfigError, MpoConfig};
 use crate::critic::{Critic, CriticGradInputs, CriticTape, CriticTransposed};
 use crate::estep::{DualRow, DualSums, dual_row, solve_temperature_with};
@@ -636,15 +636,15 @@ impl<
         if !norm.is_finite() {
             return Err(UpdateError::NonFinite(NonFinite::CriticGradients));
         }
-        if norm > self.cfg.critic_clip {
-            self.grads.critic.scale(self.cfg.critic_clip / norm);
-        }
+        let scale = clip_scale(norm, self.cfg.critic_clip);
         let l = &mut self.live;
-        adam_step(
+        adam_step_with(
+            par,
             &AdamConfig::with_lr(self.cfg.critic_lr),
             &mut l.critic_opt,
             &mut l.critic,
             &self.grads.critic,
+            scale,
             &mut l.critic_m,
             &mut l.critic_v,
         );
@@ -757,15 +757,15 @@ impl<
         if !(norm.is_finite() && nll.is_finite() && km_tot.is_finite() && kc_tot.is_finite()) {
             return Err(UpdateError::NonFinite(NonFinite::ActorGradients));
         }
-        if norm > cfg.actor_clip {
-            self.grads.actor.scale(cfg.actor_clip / norm);
-        }
+        let scale = clip_scale(norm, cfg.actor_clip);
         let l = &mut self.live;
-        adam_step(
+        adam_step_with(
+            par,
             &AdamConfig::with_lr(cfg.actor_lr),
             &mut l.actor_opt,
             &mut l.actor,
             &self.grads.actor,
+            scale,
             &mut l.actor_m,
             &mut l.actor_v,
         );
@@ -822,6 +822,11 @@ impl<
         par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
         libm::sqrt(parts.iter().map(|(_, sq)| *sq).sum::<f64>()) as f32
     }
+}
+
+/// The factor that clips a gradient of global norm `norm` to `max` (1 when it is inside).
+fn clip_scale(norm: f32, max: f32) -> f32 {
+    if norm > max { max / norm } else { 1.0 }
 }
 
 /// `|a - clip(a, -1, 1)|^2`: how far an action lies outside the actuators' range.

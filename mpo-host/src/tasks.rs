@@ -211,6 +211,24 @@ table! {
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
     "cheetah-run" / "default": [17, 6, 21; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "cartpole-swingup" / "small": [5, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
+    "pendulum-swingup" / "small": [3, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
+    "acrobot-swingup" / "small": [6, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "hopper-stand" / "small": [15, 4, 10; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "hopper-hop" / "small": [15, 4, 10; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "walker-stand" / "small": [24, 6, 21; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 300_000, SUITE_SCHEDULE, SUITE_MPO;
+    "walker-walk" / "small": [24, 6, 21; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 500_000, SUITE_SCHEDULE, SUITE_MPO;
+    "walker-run" / "small": [24, 6, 21; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
+    "cheetah-run" / "small": [17, 6, 21; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
+        steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
 }
 
 /// The default network variant.
