@@ -1,34 +1,52 @@
 #!/usr/bin/env python3
 """Summarises `mpo train` run directories into the markdown rows of docs/training.md.
 
-Usage: docs/results/summarize.py RUN_DIR... (each with metrics.csv)
-Per run: first environment step whose evaluation mean is >= 900 and the training wall clock
-there, best and final evaluation, total wall clock, mean updates/s and env steps/s.
+Usage: docs/results/summarize.py [--target X] [--label NAME] RUN_DIR...
+(each RUN_DIR with metrics.csv). Per run: first environment step whose evaluation mean is
+>= X (default 900) and the training wall clock there, best and final evaluation, total wall
+clock, mean environment steps/s and updates/s. With several runs, a last row gives the final
+evaluation's mean +- standard deviation over the runs (population std, as the evaluation's).
 """
 import csv
+import statistics
 import sys
 
 
 def main():
-    print("| run | first eval >= 900 at (steps) | wall there (s) | best eval | final eval (mean +- std) | total wall (s) | env steps/s | updates/s |")
-    print("|---|---|---|---|---|---|---|---|")
-    for d in sys.argv[1:]:
+    args = sys.argv[1:]
+    target, label = 900.0, None
+    while args and args[0].startswith("--"):
+        if args[0] == "--target":
+            target = float(args[1])
+        elif args[0] == "--label":
+            label = args[1]
+        else:
+            sys.exit(f"unknown option {args[0]}")
+        args = args[2:]
+    t = f"{target:g}"
+    print(f"| run | first eval >= {t} at (steps) | wall there (s) | best eval | final eval (mean +- std) | env steps | total wall (s) | env steps/s | updates/s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    finals = []
+    for d in args:
         rows = list(csv.DictReader(open(f"{d}/metrics.csv")))
-        first = next((r for r in rows if float(r["eval_return_mean"]) >= 900), None)
+        first = next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
         last = rows[-1]
         best = max(float(r["eval_return_mean"]) for r in rows)
         wall = float(last["wall_s"])
         steps = int(last["env_steps"])
         updates = int(last["updates"])
+        final = float(last["eval_return_mean"])
+        finals.append(final)
+        name = d.rstrip("/").split("/")[-1]
+        reached = (f"{int(first['env_steps'])} | {float(first['wall_s']):.0f}" if first else "not reached | -")
         print(
-            f"| {d.rstrip('/').split('/')[-1]} | {first['env_steps'] if first else 'not reached'} | "
-            f"{float(first['wall_s']):.0f} | {best:.1f} | "
-            f"{float(last['eval_return_mean']):.1f} +- {float(last['eval_return_std']):.1f} | "
-            f"{wall:.0f} | {steps / wall:.0f} | {updates / wall:.0f} |"
-            if first
-            else f"| {d.rstrip('/').split('/')[-1]} | not reached | - | {best:.1f} | "
-            f"{float(last['eval_return_mean']):.1f} +- {float(last['eval_return_std']):.1f} | "
-            f"{wall:.0f} | {steps / wall:.0f} | {updates / wall:.0f} |"
+            f"| {name} | {reached} | {best:.1f} | {final:.1f} +- {float(last['eval_return_std']):.1f} | "
+            f"{steps} | {wall:.0f} | {steps / wall:.0f} | {updates / wall:.1f} |"
+        )
+    if len(finals) > 1:
+        print(
+            f"| {label or 'mean over runs'} | | | | {statistics.fmean(finals):.1f} +- "
+            f"{statistics.pstdev(finals):.1f} ({len(finals)} runs) | | | | |"
         )
 
 

@@ -151,12 +151,13 @@ pub enum Start<'a, const O: usize> {
 }
 
 impl<const O: usize> Start<'_, O> {
+    /// The start values of sample `n` (`y` is the output, for [`Start::Y`]).
     #[inline(always)]
-    fn get(&self, y: &[[f32; O]], n: usize, o: usize) -> f32 {
+    fn row<'a>(&'a self, y: &'a [[f32; O]], n: usize) -> &'a [f32; O] {
         match self {
-            Self::Y => y[n][o],
-            Self::Row(b) => b[o],
-            Self::Rows(r) => r[n][o],
+            Self::Y => &y[n],
+            Self::Row(b) => b,
+            Self::Rows(r) => &r[n],
         }
     }
 }
@@ -250,10 +251,9 @@ fn accumulate_tile<
 ) {
     let mut acc = [[[0f32; LANES]; K]; TN];
     for s in 0..TN {
+        let src = start.row(y, n0 + s);
         for k in 0..K {
-            for l in 0..LANES {
-                acc[s][k][l] = start.get(y, n0 + s, o0 + LANES * k + l);
-            }
+            acc[s][k].copy_from_slice(&src[o0 + LANES * k..o0 + LANES * (k + 1)]);
         }
     }
     for i in 0..I {
@@ -298,9 +298,7 @@ fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
         let tn = TILE_N_NARROW.min(x.len() - n0);
         let mut acc = [[0f32; LANES]; TILE_N_NARROW];
         for s in 0..tn {
-            for l in 0..width {
-                acc[s][l] = start.get(y, n0 + s, o0 + l);
-            }
+            acc[s][..width].copy_from_slice(&start.row(y, n0 + s)[o0..]);
         }
         for i in 0..I {
             let wr = &w[i][o0..];
@@ -330,11 +328,7 @@ fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
     start: Start<'_, O>,
     y: &mut [f32; O],
 ) {
-    let ys = core::slice::from_ref(y);
-    let mut init = [0f32; O];
-    for o in 0..O {
-        init[o] = start.get(ys, 0, o);
-    }
+    let mut init = *start.row(core::slice::from_ref(y), 0);
     let mut o0 = 0;
     while o0 + CHUNK_1 <= O {
         let mut acc: [f32; CHUNK_1] = init[o0..o0 + CHUNK_1].try_into().unwrap();
