@@ -26,6 +26,8 @@ pub mod actor;
 #[cfg(feature = "train")]
 pub mod adam;
 #[cfg(feature = "train")]
+pub mod agent;
+#[cfg(feature = "train")]
 pub mod config;
 #[cfg(feature = "train")]
 pub mod critic;

@@ -174,6 +174,7 @@ const SUITE_MPO: MpoSettings = MpoSettings {
     n_step: 5,
     action_penalization: true,
     eps_penalty: 0.1,
+    shared_samples: true,
     ..MpoSettings::REPORT
 };
 

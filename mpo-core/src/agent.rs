@@ -1,0 +1,217 @@
+//! The act-store-learn loop of training: what a trainer does between the plant's steps, as a
+//! `no_std` state machine the host and a device share.
+//!
+//! [`Agent::act`] picks the action for a state (uniform during the warm-up, then a sample of the
+//! online policy, both from the collector's random stream) and [`Agent::observe`] stores the
+//! transition and runs the learner updates the schedule calls for (batches from the replay's
+//! sampler stream). The host's trainer and the freestanding device trainer drive the same code,
+//! which is why a run on the device has the bits of the same run in-process.
+//!
+//! Random streams are kept as raw states (`[u8; 32]`) so the whole agent is plain data that can
+//! be created zeroed in place (a static on a device).
+
+use bytemuck::Zeroable;
+
+use crate::config::{ConfigError, MpoConfig};
+use crate::learner::{Learner, UpdateError, UpdateStats};
+use crate::parallel::Parallel;
+use crate::replay::{BatchMode, Replay, SampleError, Transition};
+use crate::rng::Rng;
+
+/// When to act randomly and when to learn, in environment steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Zeroable)]
+pub struct AgentSchedule {
+    /// Steps with uniformly random actions in [-1, 1] before the policy acts and learning
+    /// starts.
+    pub warmup_steps: u64,
+    /// Environment steps between learning phases.
+    pub update_interval: u64,
+    /// Learner updates per learning phase.
+    pub updates_per_interval: u64,
+    /// Steps of an n-step transition (1 = single transitions; ignored with Retrace, whose
+    /// sequence length is the learner's `sequence_len`).
+    pub n_step: u32,
+}
+
+/// Why a step of learning failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum AgentError {
+    /// The replay could not provide a batch.
+    Sample(SampleError),
+    /// A learner update was rejected (and undone).
+    Update(UpdateError),
+}
+
+impl core::fmt::Display for AgentError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Sample(e) => write!(f, "replay: {e}"),
+            Self::Update(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl core::error::Error for AgentError {}
+
+/// A learner, its replay, the two random streams of acting and sampling, and the schedule.
+#[derive(Zeroable)]
+pub struct Agent<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
+> {
+    /// The learner.
+    pub learner: Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    /// Experience.
+    pub replay: Replay<CAP, OBS, ACT>,
+    /// State of the collector's stream (warm-up actions and exploration noise).
+    pub collector: [u8; 32],
+    /// State of the sampler's stream (batch indices).
+    pub sampler: [u8; 32],
+    /// Environment steps observed.
+    pub env_steps: u64,
+    /// The schedule.
+    pub schedule: AgentSchedule,
+}
+
+impl<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
+> Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>
+{
+    /// A fresh agent: the learner initialised from `seed`, an empty replay, and the collector
+    /// and sampler streams split from one root seeded with `stream_seed` (in that order).
+    pub fn init(
+        &mut self,
+        cfg: MpoConfig,
+        seed: u64,
+        stream_seed: u64,
+        schedule: AgentSchedule,
+    ) -> Result<(), ConfigError> {
+        if schedule.update_interval == 0 {
+            return Err(ConfigError {
+                field: "update_interval",
+                requirement: "at least 1",
+            });
+        }
+        self.learner.init(cfg, seed)?;
+        self.replay.clear();
+        let mut root = Rng::seed_from_u64(stream_seed);
+        self.collector = root.split().state();
+        self.sampler = root.split().state();
+        self.env_steps = 0;
+        self.schedule = schedule;
+        Ok(())
+    }
+
+    /// True while the warm-up's random actions are taken.
+    pub fn in_warmup(&self) -> bool {
+        self.env_steps < self.schedule.warmup_steps
+    }
+
+    /// The action for state `obs` and its log-density under the behaviour policy: uniform in
+    /// [-1, 1] during the warm-up, else a sample of the online policy.
+    pub fn act(&mut self, obs: &[f32; OBS], action: &mut [f32; ACT]) -> f32 {
+        let mut rng = Rng::from_state(self.collector);
+        let log_prob = if self.in_warmup() {
+            for a in action.iter_mut() {
+                *a = rng.uniform_range(-1.0, 1.0);
+            }
+            -(ACT as f32) * core::f32::consts::LN_2
+        } else {
+            self.learner.sample_action(obs, &mut rng, action)
+        };
+        self.collector = rng.state();
+        log_prob
+    }
+
+    /// The standard-normal draws [`Agent::act`] would turn into a sample of the policy after
+    /// the warm-up (`action = mu + L z`): for a policy evaluated elsewhere (a controller
+    /// process) with the same bits.
+    pub fn draw_noise(&mut self, z: &mut [f32; ACT]) {
+        let mut rng = Rng::from_state(self.collector);
+        rng.fill_normal(z);
+        self.collector = rng.state();
+    }
+
+    /// Marks the start of an episode (later transitions never join a sequence with earlier
+    /// ones).
+    pub fn begin_episode(&mut self) {
+        self.replay.begin_episode();
+    }
+
+    /// How the replay's batches are drawn for this configuration.
+    pub fn batch_mode(&self) -> BatchMode {
+        let cfg = &self.learner.cfg;
+        if cfg.sequence_len > 1 {
+            BatchMode::Sequences {
+                len: cfg.sequence_len,
+                gamma: cfg.gamma,
+            }
+        } else {
+            BatchMode::OneStep {
+                n: self.schedule.n_step.max(1),
+                gamma: cfg.gamma,
+            }
+        }
+    }
+
+    /// Stores a transition, counts the step, and runs the updates the schedule calls for,
+    /// on `par`, handing each update's statistics to `on_update`.
+    pub fn observe<P: Parallel>(
+        &mut self,
+        t: &Transition<OBS, ACT>,
+        par: &P,
+        on_update: &mut dyn FnMut(&UpdateStats),
+    ) -> Result<(), AgentError> {
+        self.replay.push(t);
+        self.env_steps += 1;
+        let s = self.schedule;
+        if self.env_steps >= s.warmup_steps && self.env_steps.is_multiple_of(s.update_interval) {
+            for _ in 0..s.updates_per_interval {
+                let stats = self.update(par)?;
+                on_update(&stats);
+            }
+        }
+        Ok(())
+    }
+
+    /// One learner update on a batch drawn as the configuration's policy evaluation needs.
+    pub fn update<P: Parallel>(&mut self, par: &P) -> Result<UpdateStats, AgentError> {
+        self.fill_batch()?;
+        self.learner.update_with(par).map_err(AgentError::Update)
+    }
+
+    /// Draws the learner's next batch from the replay (n-step transitions or sequences).
+    pub fn fill_batch(&mut self) -> Result<(), AgentError> {
+        let mode = self.batch_mode();
+        let mut rng = Rng::from_state(self.sampler);
+        let r = self
+            .replay
+            .fill_batch(&mut rng, &mut self.learner.batch, mode);
+        self.sampler = rng.state();
+        r.map_err(AgentError::Sample)
+    }
+}
