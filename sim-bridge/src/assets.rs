@@ -38,6 +38,16 @@ fn read(dir: &std::path::Path, file: &str) -> Result<Vec<u8>, SimError> {
 
 /// Loads `<domain>.xml` with its `./common/*.xml` includes, the skybox replaced by an empty model.
 pub fn load_model(domain: &str) -> Result<MjModel, SimError> {
+    load(domain, false)
+}
+
+/// Loads `<domain>.xml` with every visual asset, the skybox included: the model a renderer
+/// draws, as dm_control loads it. Its dynamics are the same as [`load_model`]'s.
+pub fn load_visual_model(domain: &str) -> Result<MjModel, SimError> {
+    load(domain, true)
+}
+
+fn load(domain: &str, skybox: bool) -> Result<MjModel, SimError> {
     crate::logging::install();
     let dir = suite_dir();
     let file = format!("{domain}.xml");
@@ -50,7 +60,7 @@ pub fn load_model(domain: &str) -> Result<MjModel, SimError> {
     vfs.add_from_buffer(&file, &main).map_err(|e| vfs_err(&e))?;
     for common in COMMON_FILES {
         let rel = format!("common/{common}");
-        let contents = if common == "skybox.xml" {
+        let contents = if common == "skybox.xml" && !skybox {
             // Still required to exist, so a wrong directory is caught here, not silently used.
             read(&dir, &rel)?;
             b"<mujoco><asset/></mujoco>".to_vec()

@@ -33,6 +33,8 @@ pub mod launcher;
 mod logging;
 pub mod numpy_rng;
 pub mod physics;
+#[cfg(feature = "render")]
+pub mod render;
 pub mod rewards;
 mod tasks;
 
