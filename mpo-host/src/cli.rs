@@ -28,6 +28,15 @@ pub enum Command {
     Train(TrainArgs),
     /// Evaluate a checkpoint's mean-action policy; prints mean and std of the return as JSON.
     Eval(EvalArgs),
+    /// Watch a checkpoint's policy: a video and/or a contact sheet of its evaluation episodes.
+    ///
+    /// Runs the mean action on the same evaluation environments and seeds as `mpo eval` (the
+    /// returns printed and drawn on the frames are `mpo eval`'s) and renders offscreen with
+    /// MuJoCo's renderer through EGL (without a GPU: Mesa's software renderer, Debian packages
+    /// libegl1 libegl-mesa0 libgl1-mesa-dri libgles2). Video formats by --out's extension: .gif
+    /// (built in, at most 50 frames per second) and .mp4 (needs the ffmpeg program). Prints a
+    /// JSON summary.
+    Render(RenderArgs),
     /// Write a checkpoint's policy as Rust source (constant arrays in read-only memory) for
     /// the inference-only firmware: OUT/policy.rs. Build the firmware with
     /// `MPO_FIRMWARE_WEIGHTS=OUT/policy.rs cargo build --release --manifest-path
@@ -212,6 +221,56 @@ pub struct TrainArgs {
     /// lockstep, with the same results as in-process training.
     #[command(flatten)]
     pub link: LinkArgs,
+    /// Every N evaluations (the untrained policy's first), a contact sheet of evaluation
+    /// episode 0 in <run>/renders/step-<env steps>.png (as `mpo render --strip`; needs
+    /// offscreen rendering, see `mpo render --help`). Off by default.
+    #[arg(long, value_name = "N")]
+    pub render_every: Option<u32>,
+}
+
+/// `mpo render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Run directory or checkpoint directory.
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint: PathBuf,
+    /// Episodes, each on a fresh evaluation environment (as `mpo eval`).
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    pub episodes: u32,
+    /// Evaluation seed; episode i uses environment seed (2^31 + 1000 S + i) mod 2^32
+    /// [default: the run's seed].
+    #[arg(long, value_name = "S")]
+    pub seed: Option<u32>,
+    /// Control steps pictured per episode [default: the whole episode]. The episode still
+    /// runs to its end, so the returns printed are whole-episode returns.
+    #[arg(long, value_name = "T")]
+    pub steps: Option<u32>,
+    /// Image width in pixels.
+    #[arg(long, value_name = "W", default_value_t = 320)]
+    pub width: u32,
+    /// Image height in pixels.
+    #[arg(long, value_name = "H", default_value_t = 240)]
+    pub height: u32,
+    /// Camera: one of the model's (an unknown name lists them) or `free` (MuJoCo's free
+    /// camera) [default: the model's first: cartpole `fixed`, walker and cheetah `side`, hopper
+    /// `cam0`, acrobot and pendulum `fixed`].
+    #[arg(long, value_name = "NAME")]
+    pub camera: Option<String>,
+    /// Frames per second; a frame every round(control rate / F) control steps, played in real
+    /// time [default: the control rate, at most 50 for .gif].
+    #[arg(long, value_name = "F")]
+    pub fps: Option<f64>,
+    /// The video: FILE.gif (built in) or FILE.mp4 (needs the ffmpeg program, Debian package
+    /// `ffmpeg`). Each frame shows the step and the running return.
+    #[arg(long, value_name = "FILE", required_unless_present = "strip")]
+    pub out: Option<PathBuf>,
+    /// A contact sheet: --strip-frames frames at regular intervals in one PNG, each labelled
+    /// with its step and running return.
+    #[arg(long, value_name = "FILE.png")]
+    pub strip: Option<PathBuf>,
+    /// Frames on the contact sheet.
+    #[arg(long, value_name = "N", default_value_t = 8)]
+    pub strip_frames: u32,
 }
 
 /// `mpo eval`.

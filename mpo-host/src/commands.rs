@@ -8,9 +8,10 @@ use std::time::Duration;
 use serde::Serialize;
 
 use crate::checkpoint::{self, CheckpointError, Verified};
-use crate::cli::{ControllerArgs, EvalArgs, ExportArgs, PlotArgs, RunArgs, TrainArgs};
+use crate::cli::{ControllerArgs, EvalArgs, ExportArgs, PlotArgs, RenderArgs, RunArgs, TrainArgs};
 use crate::eval::{evaluate, mean_std};
 use crate::link::LinkOptions;
+use crate::render::{EvaluationStrips, RenderError, RenderOptions, RenderSummary};
 use crate::run::{Limit, Pacing, RunError, RunRequest, RunSummary};
 use crate::settings::{self, Settings, SettingsError};
 use crate::tasks::{self, Row, RowVisitor, UnknownTask};
@@ -35,6 +36,9 @@ pub enum Error {
     /// Running a policy (`mpo run`).
     #[error(transparent)]
     Run(#[from] RunError),
+    /// Rendering a policy (`mpo render`, `mpo train --render-every`).
+    #[error(transparent)]
+    Render(#[from] RenderError),
     /// The controller process (`mpo controller`).
     #[error("controller: {0}")]
     Controller(String),
@@ -190,6 +194,15 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
         .map_err(SettingsError::Invalid)?;
     let (settings, out, resume) = resolve_train(args)?;
     let (task, net) = (settings.task.clone(), settings.net.clone());
+    // `--render-every N`: a machine that cannot render says so before training starts.
+    let render = match args.render_every {
+        Some(n) => {
+            let strips = EvaluationStrips::new(n)?;
+            strips.check(&task)?;
+            Some(strips)
+        }
+        None => None,
+    };
     let req = TrainRequest {
         settings,
         out,
@@ -204,6 +217,7 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
             Some(n) => n,
             None => crate::pool::Pool::available(),
         },
+        render,
     };
     Ok(tasks::visit(&task, &net, TrainVisitor(req))??)
 }
@@ -268,6 +282,61 @@ impl RowVisitor for EvalVisitor {
             returns,
         })
     }
+}
+
+struct RenderVisitor<'a> {
+    v: Verified,
+    opts: &'a RenderOptions,
+}
+
+impl RowVisitor for RenderVisitor<'_> {
+    type Out = Result<RenderSummary, Error>;
+    fn visit<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
+        const M: usize,
+        const N: usize,
+        const CAP: usize,
+    >(
+        self,
+        row: &'static Row,
+    ) -> Self::Out {
+        let learner =
+            load_learner::<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>(&self.v, row)?;
+        Ok(crate::render::render(
+            &self.v.meta.settings.task,
+            self.v.meta.env_steps,
+            |o, a| learner.mean_action(o, a),
+            self.opts,
+        )?)
+    }
+}
+
+/// `mpo render`: the checkpoint's mean-action policy on its evaluation episodes, as pictures.
+pub fn render(args: &RenderArgs) -> Result<RenderSummary, Error> {
+    let v = checkpoint::open(&args.checkpoint)?;
+    let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
+    let opts = RenderOptions {
+        episodes: args.episodes,
+        seed: args.seed.unwrap_or(v.meta.settings.seed),
+        steps: args.steps,
+        width: args.width,
+        height: args.height,
+        camera: args.camera.clone(),
+        fps: args.fps,
+        out: args.out.clone(),
+        strip: args.strip.clone(),
+        strip_frames: args.strip_frames,
+    };
+    tasks::visit(&task, &net, RenderVisitor { v, opts: &opts })?
 }
 
 struct RunVisitor<'a> {

@@ -4,16 +4,20 @@
 //! function of [`commands`], so tests and other programs can call it directly.
 #![deny(missing_docs)]
 
+pub mod caption;
 pub mod checkpoint;
 pub mod cli;
 pub mod commands;
+pub mod contact_sheet;
 pub mod eval;
 pub mod link;
 pub mod metrics;
 pub mod outage_log;
 pub mod plot;
 pub mod pool;
+pub mod render;
 pub mod run;
 pub mod settings;
 pub mod tasks;
 pub mod train;
+pub mod video;

@@ -58,6 +58,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             println!("{}", serde_json::to_string(&s)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Render(args) => {
+            let s = commands::render(&args)?;
+            println!("{}", serde_json::to_string(&s)?);
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Export(args) => {
             let s = commands::export(&args)?;
             println!("{}", serde_json::to_string(&s)?);

@@ -126,6 +126,8 @@ pub struct TrainRequest<'a> {
     pub link: Option<LinkOptions>,
     /// Threads of the learner (results do not depend on it).
     pub threads: usize,
+    /// `--render-every N`: contact sheets of the evaluation policy (`crate::render`).
+    pub render: Option<crate::render::EvaluationStrips>,
 }
 
 /// Why one step of [`Trainer::collect`] failed.
@@ -591,6 +593,17 @@ fn run<
             updates_per_s: (t.learner.updates - mark.2) as f64 / dt,
             stats,
         });
+        // `--render-every N`: a picture of the policy just evaluated; only reads it, and a
+        // failure is a warning (like curve.png).
+        if let Some(strips) = &req.render {
+            let policy = |o: &[f32; OBS], a: &mut [f32; ACT]| t.learner.mean_action(o, a);
+            let (i, task) = (metrics_rows.len() - 1, &settings.task);
+            if let Err(e) =
+                strips.after_evaluation(i, t.env_steps, task, settings.seed, &out, policy)
+            {
+                log(&pb, &format!("warning: evaluation sheet not written: {e}"));
+            }
+        }
         Ok((mean, std))
     };
 
