@@ -180,6 +180,86 @@ impl MpoConfig {
     }
 }
 
+/// Words of [`MpoConfig::to_words`].
+pub const CONFIG_WORDS: usize = 25;
+
+impl MpoConfig {
+    /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
+    /// 0/1, the f64 E-step tolerance as its low word then, last, its high word): how a host
+    /// sends it to a device trainer, exactly.
+    pub fn to_words(&self) -> [u32; CONFIG_WORDS] {
+        let f = |x: f32| x.to_bits();
+        [
+            f(self.eps_eta),
+            f(self.eps_mean),
+            f(self.eps_cov),
+            self.per_dim_kl as u32,
+            f(self.gamma),
+            f(self.actor_lr),
+            f(self.critic_lr),
+            f(self.dual_lr),
+            self.mstep_iters,
+            f(self.actor_clip),
+            f(self.critic_clip),
+            self.target_period,
+            f(self.init_std),
+            f(self.std_floor),
+            f(self.eta_init),
+            f(self.alpha_mean_init),
+            f(self.alpha_cov_init),
+            self.estep_tol.to_bits() as u32,
+            self.estep_max_iter,
+            self.sequence_len,
+            self.action_penalization as u32,
+            f(self.eps_penalty),
+            self.shared_samples as u32,
+            f(self.target_tau),
+            (self.estep_tol.to_bits() >> 32) as u32,
+        ]
+    }
+
+    /// The inverse of [`MpoConfig::to_words`], bit for bit; the result is validated.
+    pub fn from_words(w: &[u32; CONFIG_WORDS]) -> Result<Self, ConfigError> {
+        let f = f32::from_bits;
+        let flag = |x: u32, field| match x {
+            0 => Ok(false),
+            1 => Ok(true),
+            _ => Err(ConfigError {
+                field,
+                requirement: "0 or 1",
+            }),
+        };
+        let cfg = Self {
+            eps_eta: f(w[0]),
+            eps_mean: f(w[1]),
+            eps_cov: f(w[2]),
+            per_dim_kl: flag(w[3], "per_dim_kl")?,
+            gamma: f(w[4]),
+            actor_lr: f(w[5]),
+            critic_lr: f(w[6]),
+            dual_lr: f(w[7]),
+            mstep_iters: w[8],
+            actor_clip: f(w[9]),
+            critic_clip: f(w[10]),
+            target_period: w[11],
+            init_std: f(w[12]),
+            std_floor: f(w[13]),
+            eta_init: f(w[14]),
+            alpha_mean_init: f(w[15]),
+            alpha_cov_init: f(w[16]),
+            estep_tol: f64::from_bits(w[17] as u64 | (w[24] as u64) << 32),
+            estep_max_iter: w[18],
+            sequence_len: w[19],
+            action_penalization: flag(w[20], "action_penalization")?,
+            eps_penalty: f(w[21]),
+            shared_samples: flag(w[22], "shared_samples")?,
+            target_tau: f(w[23]),
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}
+
 impl Default for MpoConfig {
     fn default() -> Self {
         Self::REPORT
@@ -206,3 +286,29 @@ impl core::fmt::Display for ConfigError {
 }
 
 impl core::error::Error for ConfigError {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn words_round_trip_every_field_and_invalid_words_are_refused() {
+        let cfg = MpoConfig {
+            per_dim_kl: true,
+            sequence_len: 3,
+            action_penalization: true,
+            shared_samples: false,
+            target_tau: 0.005,
+            estep_tol: 1e-3,
+            ..MpoConfig::REPORT
+        };
+        let w = cfg.to_words();
+        assert_eq!(MpoConfig::from_words(&w), Ok(cfg));
+        let mut bad = w;
+        bad[3] = 2;
+        assert!(MpoConfig::from_words(&bad).is_err());
+        let mut bad = w;
+        bad[4] = 2.0f32.to_bits(); // gamma out of range
+        assert!(MpoConfig::from_words(&bad).is_err());
+    }
+}

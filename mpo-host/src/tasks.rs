@@ -124,7 +124,7 @@ macro_rules! table {
             $(
                 if task == $task && net == $net {
                     const { assert!($tri == $act * ($act + 1) / 2) };
-                    const { assert!($b % $c == 0, "the batch must split into equal chunks") };
+                    const { assert!($b / $c * $c == $b, "the batch must split into equal chunks") };
                     return Ok(v.visit::<$obs, $act, $tri, $ah1, $ah2, $qh1, $qh2, { $b / $c }, $c, $l, $m, $n, $cap>(&ROWS[i]));
                 }
                 i += 1;
@@ -166,6 +166,17 @@ const CARTPOLE_SCHEDULE: Schedule = Schedule {
     action_penalty: 0.0,
 };
 
+/// The microcontroller row (`net = "mcu"`, `mpo train --device`): sizes that fit the whole
+/// learner and a 1000-transition replay in 256 KiB of RAM (docs/device.md).
+const MCU_SCHEDULE: Schedule = Schedule {
+    warmup_steps: 1_000,
+    update_interval: 2,
+    updates_per_interval: 1,
+    eval_interval: 5_000,
+    eval_episodes: 10,
+    action_penalty: 0.0,
+};
+
 /// Settings for the harder tasks (docs/training.md: the tuning log and ablations).
 const SUITE_MPO: MpoSettings = MpoSettings {
     eps_mean: 0.01,
@@ -194,6 +205,8 @@ table! {
         steps 4_000,
         Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0 },
         CARTPOLE_MPO;
+    "cartpole-balance" / "mcu": [5, 1, 1; actor (32, 32); critic (32, 32); batch 32 in 1; seq 1; 8, 8; replay 1_000],
+        steps 50_000, MCU_SCHEDULE, CARTPOLE_MPO;
     "cartpole-swingup" / "default": [5, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
     "pendulum-swingup" / "default": [3, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],

@@ -14,9 +14,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mpo_core::learner::{Learner, UpdateError};
-use mpo_core::replay::{BatchMode, Replay, Transition};
-use mpo_core::rng::Rng;
+use mpo_core::agent::{Agent, AgentError, AgentSchedule};
+use mpo_core::learner::UpdateError;
+use mpo_core::replay::Transition;
+
 use serde::Serialize;
 use sim_bridge::{Environment, SimError};
 
@@ -25,7 +26,7 @@ use crate::eval::{evaluate, evaluate_with, mean_std};
 use crate::link::{Link, LinkOptions, LinkReport, LinkSetupError};
 use crate::metrics::{self, MetricsRow, StatsAccumulator};
 use crate::pool::PoolParallel;
-use crate::settings::{Schedule, Settings};
+use crate::settings::Settings;
 use crate::tasks::{Row, RowVisitor};
 
 /// Mixed into the run's seed for the collector and sampler root (the learner uses the seed
@@ -157,17 +158,10 @@ pub struct Trainer<
     const N: usize,
     const CAP: usize,
 > {
-    /// The learner.
-    pub learner: Box<Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>>,
-    /// Experience.
-    pub replay: Box<Replay<CAP, OBS, ACT>>,
+    /// The learner, its replay, the acting and sampling streams and the schedule: the part a
+    /// device trainer runs too (`mpo_core::agent`).
+    pub agent: Box<Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>>,
     env: Box<dyn Environment>,
-    /// Exploration and warm-up actions.
-    pub collector: Rng,
-    /// Batch indices.
-    pub sampler: Rng,
-    /// Environment steps taken.
-    pub env_steps: u64,
     /// Episodes completed.
     pub episodes: u64,
     in_episode: bool,
@@ -178,8 +172,6 @@ pub struct Trainer<
     act64: [f64; ACT],
     /// Learner statistics since the last metrics row.
     pub stats: StatsAccumulator,
-    schedule: Schedule,
-    batch_mode: BatchMode,
     action_penalty: f32,
     /// Runs the learner's work items on `--threads` threads.
     pool: PoolParallel,
@@ -220,32 +212,31 @@ impl<
                 settings.task, spec.obs_dim, spec.act_dim
             )));
         }
-        let mut learner: Box<Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>> =
+        let mut agent: Box<Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>> =
             bytemuck::zeroed_box();
-        learner
-            .init(settings.mpo.to_config(), settings.seed as u64)
+        agent
+            .init(
+                settings.mpo.to_config(),
+                settings.seed as u64,
+                settings.seed as u64 ^ STREAM_SALT,
+                agent_schedule(settings),
+            )
             .map_err(|e| crate::settings::SettingsError::Invalid(format!("mpo: {e}")))?;
-        let mut replay: Box<Replay<CAP, OBS, ACT>> = bytemuck::zeroed_box();
-        let mut root = Rng::seed_from_u64(settings.seed as u64 ^ STREAM_SALT);
-        let mut collector = root.split();
-        let mut sampler = root.split();
         let mut env = sim_bridge::make(&settings.task, settings.seed)?;
-        let (mut env_steps, mut episodes, mut stats) = (0, 0, StatsAccumulator::default());
+        let (mut episodes, mut stats) = (0, StatsAccumulator::default());
         let mut obs64 = [0f64; OBS];
         if let Some(v) = resume {
-            v.restore(&mut learner, &mut replay)?;
+            v.restore(&mut agent.learner, &mut agent.replay)?;
             let m = &v.meta;
             let bad = |what: &str| CheckpointError::Corrupt {
                 path: v.dir.join("meta.json"),
                 message: format!("bad {what}"),
             };
-            collector = Rng::from_state(
-                checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?,
-            );
-            sampler = Rng::from_state(
-                checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?,
-            );
-            env_steps = m.env_steps;
+            agent.collector =
+                checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?;
+            agent.sampler =
+                checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?;
+            agent.env_steps = m.env_steps;
             episodes = m.episodes;
             stats = m.stats.clone();
             // The environment's RandomState advances once per reset: replay the resets.
@@ -258,12 +249,8 @@ impl<
             stats.sums = vec![0.0; metrics::STAT_NAMES.len()];
         }
         Ok(Self {
-            learner,
-            replay,
+            agent,
             env,
-            collector,
-            sampler,
-            env_steps,
             episodes,
             in_episode: false,
             episode_step: 0,
@@ -271,8 +258,6 @@ impl<
             next64: [0.0; OBS],
             act64: [0.0; ACT],
             stats,
-            schedule: settings.schedule,
-            batch_mode: settings.mpo.batch_mode(),
             pool: PoolParallel::new(threads).map_err(|source| TrainError::Io {
                 path: "learner threads".into(),
                 source,
@@ -281,6 +266,11 @@ impl<
             link: None,
             params_dirty: true,
         })
+    }
+
+    /// Environment steps taken.
+    pub fn env_steps(&self) -> u64 {
+        self.agent.env_steps
     }
 
     /// True between episodes (where checkpoints may be taken).
@@ -300,7 +290,7 @@ impl<
         if let Some(link) = self.link.as_mut()
             && self.params_dirty
         {
-            link.push(&self.learner.live.actor)?;
+            link.push(&self.agent.learner.live.actor)?;
             self.params_dirty = false;
         }
         Ok(())
@@ -324,7 +314,7 @@ impl<
                     link.act(o, a);
                 },
             )?,
-            None => evaluate(&self.learner, task, seed, episodes)?,
+            None => evaluate(&self.agent.learner, task, seed, episodes)?,
         })
     }
 
@@ -337,42 +327,17 @@ impl<
         for _ in 0..steps {
             if !self.in_episode {
                 self.env.reset(&mut self.obs64);
-                self.replay.begin_episode();
+                self.agent.begin_episode();
                 self.in_episode = true;
                 self.episode_step = 0;
             }
             for (o, x) in obs.iter_mut().zip(&self.obs64) {
                 *o = *x as f32;
             }
-            let log_prob = if self.env_steps < self.schedule.warmup_steps {
-                for a in act.iter_mut() {
-                    *a = self.collector.uniform_range(-1.0, 1.0);
-                }
-                -(ACT as f32) * core::f32::consts::LN_2
-            } else if self.link.is_some() {
-                self.sync_controller().map_err(StepError::Link)?;
-                let link = self.link.as_mut().expect("checked");
-                link.set_episode_step(self.episodes, self.episode_step);
-                // The same draws `Gaussian::sample` makes in-process: the controller computes
-                // `mu + L z` and its log-density with the same code and parameters, so the
-                // action and the stored log-probability are bit-identical to in-process ones.
-                let mut z = [0f32; ACT];
-                self.collector.fill_normal(&mut z);
-                let floor = self.learner.cfg.std_floor;
-                match link.act_sampled(&obs, &z, floor, &mut act) {
-                    Some((_, log_prob)) => log_prob,
-                    // Missed: `act` is the safe action (zero). Stored with its density under
-                    // the current policy (only Retrace would use it).
-                    None => self
-                        .learner
-                        .live
-                        .actor
-                        .distribution(&obs, floor)
-                        .log_prob(&act),
-                }
+            let log_prob = if self.link.is_some() && !self.agent.in_warmup() {
+                self.act_through_link(&obs, &mut act)?
             } else {
-                self.learner
-                    .sample_action(&obs, &mut self.collector, &mut act)
+                self.agent.act(&obs, &mut act)
             };
             // Every Control Suite actuator's range is [-1, 1]; the replay keeps the sample.
             for (o, a) in self.act64.iter_mut().zip(&act) {
@@ -397,50 +362,87 @@ impl<
             for (o, x) in t.next_obs.iter_mut().zip(&self.next64) {
                 *o = *x as f32;
             }
-            self.replay.push(&t);
             core::mem::swap(&mut self.obs64, &mut self.next64);
-            self.env_steps += 1;
             self.episode_step += 1;
             if step.last {
                 self.in_episode = false;
                 self.episodes += 1;
             }
-            let s = &self.schedule;
-            if self.env_steps >= s.warmup_steps && self.env_steps.is_multiple_of(s.update_interval)
-            {
-                for _ in 0..s.updates_per_interval {
-                    self.update().map_err(StepError::Update)?;
-                }
-            }
+            self.observe(&t).map_err(StepError::Update)?;
         }
         Ok(())
+    }
+
+    /// The sampled action from the controller process: the same draws `Agent::act` makes
+    /// in-process (`mu + L z` and its log-density, computed with the same code and
+    /// parameters), so the action and the stored log-probability are bit-identical.
+    fn act_through_link(
+        &mut self,
+        obs: &[f32; OBS],
+        act: &mut [f32; ACT],
+    ) -> Result<f32, StepError> {
+        self.sync_controller().map_err(StepError::Link)?;
+        let mut z = [0f32; ACT];
+        self.agent.draw_noise(&mut z);
+        let floor = self.agent.learner.cfg.std_floor;
+        let link = self.link.as_mut().expect("checked");
+        link.set_episode_step(self.episodes, self.episode_step);
+        Ok(match link.act_sampled(obs, &z, floor, act) {
+            Some((_, log_prob)) => log_prob,
+            // Missed: `act` is the safe action (zero). Stored with its density under the
+            // current policy (only Retrace would use it).
+            None => self
+                .agent
+                .learner
+                .live
+                .actor
+                .distribution(obs, floor)
+                .log_prob(act),
+        })
+    }
+
+    /// Stores a transition and runs the learner updates the schedule calls for.
+    fn observe(&mut self, t: &Transition<OBS, ACT>) -> Result<(), String> {
+        let mut bad = None;
+        let (stats, dirty) = (&mut self.stats, &mut self.params_dirty);
+        self.agent
+            .observe(t, &self.pool, &mut |s| {
+                *dirty = true;
+                if bad.is_none() {
+                    bad = metrics::first_non_finite(s);
+                }
+                stats.add(s);
+            })
+            .map_err(|e| match e {
+                AgentError::Update(UpdateError::NonFinite(w)) => {
+                    format!("non-finite value in {w:?} (the update was undone)")
+                }
+                e => e.to_string(),
+            })?;
+        match bad {
+            Some((name, v)) => Err(format!("learner statistic {name} = {v}")),
+            None => Ok(()),
+        }
     }
 
     /// Draws the learner's next batch from the replay, as the configuration's policy
     /// evaluation needs (n-step transitions or sequences).
     pub fn fill_batch(&mut self) -> Result<(), String> {
-        self.replay
-            .fill_batch(&mut self.sampler, &mut self.learner.batch, self.batch_mode)
-            .map_err(|e| e.to_string())
+        self.agent.fill_batch().map_err(|e| e.to_string())
     }
+}
 
-    /// One learner update on a batch drawn as the configuration's policy evaluation needs.
-    fn update(&mut self) -> Result<(), String> {
-        self.fill_batch()?;
-        match self.learner.update_with(&self.pool) {
-            Ok(stats) => {
-                self.params_dirty = true;
-                if let Some((name, v)) = metrics::first_non_finite(&stats) {
-                    return Err(format!("learner statistic {name} = {v}"));
-                }
-                self.stats.add(&stats);
-                Ok(())
-            }
-            Err(UpdateError::NonFinite(w)) => {
-                Err(format!("non-finite value in {w:?} (the update was undone)"))
-            }
-            Err(e) => Err(e.to_string()),
-        }
+/// The agent's schedule from the run's settings.
+pub fn agent_schedule(settings: &Settings) -> AgentSchedule {
+    let s = &settings.schedule;
+    AgentSchedule {
+        warmup_steps: s.warmup_steps,
+        update_interval: s.update_interval,
+        updates_per_interval: s.updates_per_interval,
+        n_step: match settings.mpo.policy_evaluation {
+            crate::settings::PolicyEvaluation::NStep => settings.mpo.n_step,
+            _ => 1,
+        },
     }
 }
 
@@ -556,13 +558,13 @@ fn run<
         .expect("template")
         .progress_chars("=> "),
     );
-    pb.set_position(t.env_steps);
+    pb.set_position(t.env_steps());
     let mut last_eval = metrics_rows
         .last()
         .map(|r: &MetricsRow| (r.eval_return_mean, r.eval_return_std))
         .unwrap_or((f64::NAN, f64::NAN));
     let (mut mark_t, mut mark_steps, mut mark_updates) =
-        (wall(&started), t.env_steps, t.learner.updates);
+        (wall(&started), t.env_steps(), t.agent.learner.updates);
 
     let evaluate_now = |t: &mut Trainer<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>,
                         metrics_rows: &mut Vec<MetricsRow>,
@@ -583,23 +585,23 @@ fn run<
             .map(|v| v.is_finite().then_some(v))
             .collect();
         metrics_rows.push(MetricsRow {
-            env_steps: t.env_steps,
-            updates: t.learner.updates,
+            env_steps: t.env_steps(),
+            updates: t.agent.learner.updates,
             episodes: t.episodes,
             wall_s: now,
             eval_return_mean: mean,
             eval_return_std: std,
-            env_steps_per_s: (t.env_steps - mark.1) as f64 / dt,
-            updates_per_s: (t.learner.updates - mark.2) as f64 / dt,
+            env_steps_per_s: (t.env_steps() - mark.1) as f64 / dt,
+            updates_per_s: (t.agent.learner.updates - mark.2) as f64 / dt,
             stats,
         });
         // `--render-every N`: a picture of the policy just evaluated; only reads it, and a
         // failure is a warning (like curve.png).
         if let Some(strips) = &req.render {
-            let policy = |o: &[f32; OBS], a: &mut [f32; ACT]| t.learner.mean_action(o, a);
+            let policy = |o: &[f32; OBS], a: &mut [f32; ACT]| t.agent.learner.mean_action(o, a);
             let (i, task) = (metrics_rows.len() - 1, &settings.task);
             if let Err(e) =
-                strips.after_evaluation(i, t.env_steps, task, settings.seed, &out, policy)
+                strips.after_evaluation(i, t.env_steps(), task, settings.seed, &out, policy)
             {
                 log(&pb, &format!("warning: evaluation sheet not written: {e}"));
             }
@@ -623,19 +625,19 @@ fn run<
                 rows: &[MetricsRow],
                 wall_s: f64|
      -> Result<(), TrainError> {
-        let c = t.replay.counters();
+        let c = t.agent.replay.counters();
         let meta = Meta {
             format: checkpoint::FORMAT.into(),
             version: checkpoint::VERSION,
             settings: settings.clone(),
             sizes: row.sizes,
-            env_steps: t.env_steps,
+            env_steps: t.env_steps(),
             episodes: t.episodes,
-            updates: t.learner.updates,
+            updates: t.agent.learner.updates,
             wall_s,
-            learner_rng: checkpoint::hex(&t.learner.rng_state),
-            collector_rng: checkpoint::hex(&t.collector.state()),
-            sampler_rng: checkpoint::hex(&t.sampler.state()),
+            learner_rng: checkpoint::hex(&t.agent.learner.rng_state),
+            collector_rng: checkpoint::hex(&t.agent.collector),
+            sampler_rng: checkpoint::hex(&t.agent.sampler),
             replay: Counters {
                 head: c.head,
                 len: c.len,
@@ -644,9 +646,12 @@ fn run<
             },
             stats: t.stats.clone(),
             metrics: rows.to_vec(),
-            params_sha256: checkpoint::params_sha256(&t.learner.live.actor, &t.learner.live.critic),
+            params_sha256: checkpoint::params_sha256(
+                &t.agent.learner.live.actor,
+                &t.agent.learner.live.critic,
+            ),
         };
-        checkpoint::save(&out, &t.learner, &t.replay, &meta)?;
+        checkpoint::save(&out, &t.agent.learner, &t.agent.replay, &meta)?;
         Ok(())
     };
 
@@ -669,10 +674,10 @@ fn run<
 
     let mut interrupted = false;
     const CHUNK: u64 = 100;
-    while t.env_steps < settings.steps {
+    while t.env_steps() < settings.steps {
         let to_eval =
-            settings.schedule.eval_interval - t.env_steps % settings.schedule.eval_interval;
-        let n = CHUNK.min(to_eval).min(settings.steps - t.env_steps);
+            settings.schedule.eval_interval - t.env_steps() % settings.schedule.eval_interval;
+        let n = CHUNK.min(to_eval).min(settings.steps - t.env_steps());
         if let Err(e) = t.collect(n) {
             let dir = out.join(checkpoint::SUBDIR);
             pb.abandon();
@@ -680,8 +685,8 @@ fn run<
                 StepError::Sim(s) => TrainError::Sim(s),
                 StepError::Link(l) => TrainError::Link(l),
                 StepError::Update(what) => TrainError::NonFinite {
-                    update: t.learner.updates,
-                    env_steps: t.env_steps,
+                    update: t.agent.learner.updates,
+                    env_steps: t.env_steps(),
                     what,
                     last_checkpoint,
                     dir,
@@ -693,18 +698,20 @@ fn run<
                 log(&pb, &e);
             }
         }
-        pb.set_position(t.env_steps);
+        pb.set_position(t.env_steps());
         let now = wall(&started);
         if now - mark_t > 0.0 {
             pb.set_message(format!(
                 "{:.0} steps/s  {:.0} upd/s  eval {:.1}",
-                (t.env_steps - mark_steps) as f64 / (now - mark_t),
-                (t.learner.updates - mark_updates) as f64 / (now - mark_t),
+                (t.env_steps() - mark_steps) as f64 / (now - mark_t),
+                (t.agent.learner.updates - mark_updates) as f64 / (now - mark_t),
                 last_eval.0
             ));
         }
-        let at_eval = t.env_steps.is_multiple_of(settings.schedule.eval_interval)
-            || t.env_steps == settings.steps;
+        let at_eval = t
+            .env_steps()
+            .is_multiple_of(settings.schedule.eval_interval)
+            || t.env_steps() == settings.steps;
         if at_eval {
             last_eval = evaluate_now(
                 &mut t,
@@ -725,10 +732,11 @@ fn run<
                     r.wall_s
                 ),
             );
-            (mark_t, mark_steps, mark_updates) = (wall(&started), t.env_steps, t.learner.updates);
+            (mark_t, mark_steps, mark_updates) =
+                (wall(&started), t.env_steps(), t.agent.learner.updates);
             write_outputs(&metrics_rows, &pb)?;
             save(&t, &metrics_rows, wall(&started))?;
-            last_checkpoint = Some(t.env_steps);
+            last_checkpoint = Some(t.env_steps());
         }
         if req.interrupt.load(Ordering::SeqCst) && t.at_episode_boundary() {
             if !at_eval {
@@ -738,7 +746,7 @@ fn run<
                 &pb,
                 &format!(
                     "interrupted: checkpoint written at environment step {}",
-                    t.env_steps
+                    t.env_steps()
                 ),
             );
             interrupted = true;
@@ -766,12 +774,15 @@ fn run<
     Ok(Summary {
         task: settings.task.clone(),
         seed: settings.seed,
-        env_steps: t.env_steps,
-        updates: t.learner.updates,
+        env_steps: t.env_steps(),
+        updates: t.agent.learner.updates,
         eval_return_mean: last_eval.0,
         eval_return_std: last_eval.1,
         wall_s: wall(&started),
-        params_sha256: checkpoint::params_sha256(&t.learner.live.actor, &t.learner.live.critic),
+        params_sha256: checkpoint::params_sha256(
+            &t.agent.learner.live.actor,
+            &t.agent.learner.live.critic,
+        ),
         out: out.display().to_string(),
         interrupted,
         controller,

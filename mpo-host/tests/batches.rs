@@ -26,7 +26,7 @@ fn trained(evaluation: PolicyEvaluation, n: u32) -> Box<Tiny> {
 
 /// The stored transitions in age order with their episode ids.
 fn stored(t: &Tiny) -> Vec<(Transition<5, 1>, u64)> {
-    let raw = t.replay.raw();
+    let raw = t.agent.replay.raw();
     let len = raw.counters.len as usize;
     (0..len)
         .map(|k| {
@@ -65,12 +65,12 @@ fn find(all: &[(Transition<5, 1>, u64)], obs: &[f32; 5], action: &[f32; 1]) -> u
 fn n_step_rows_fold_the_stored_transitions_that_follow() {
     const N: usize = 5;
     let mut t = trained(PolicyEvaluation::NStep, N as u32);
-    let gamma = t.learner.cfg.gamma;
+    let gamma = t.agent.learner.cfg.gamma;
     let all = stored(&t);
     let (mut short, mut checked) = (0, 0);
     for _ in 0..20 {
         t.fill_batch().unwrap();
-        for chunk in t.learner.batch.iter() {
+        for chunk in t.agent.learner.batch.iter() {
             for i in 0..32 {
                 let k = find(&all, &chunk.obs[0][i], &chunk.action[0][i]);
                 let ep = all[k].1;
@@ -115,11 +115,11 @@ fn n_step_rows_fold_the_stored_transitions_that_follow() {
 fn retrace_rows_are_consecutive_transitions_of_one_episode() {
     const L: usize = 4;
     let mut t = trained(PolicyEvaluation::Retrace, L as u32);
-    let gamma = t.learner.cfg.gamma;
+    let gamma = t.agent.learner.cfg.gamma;
     let all = stored(&t);
     for _ in 0..10 {
         t.fill_batch().unwrap();
-        for chunk in t.learner.batch.iter() {
+        for chunk in t.agent.learner.batch.iter() {
             for i in 0..32 {
                 let k = find(&all, &chunk.obs[0][i], &chunk.action[0][i]);
                 for p in 0..L {

@@ -24,12 +24,12 @@ fn restore_then_save_gives_the_same_bytes() {
         summary["params_sha256"].as_str().unwrap()
     );
     let t = Tiny::new(&v.meta.settings, Some(&v), 1).unwrap();
-    assert_eq!(t.env_steps, 2000);
-    assert_eq!(t.learner.updates, v.meta.updates);
-    assert_eq!(t.replay.len(), 2000);
+    assert_eq!(t.env_steps(), 2000);
+    assert_eq!(t.agent.learner.updates, v.meta.updates);
+    assert_eq!(t.agent.replay.len(), 2000);
     let copy = d.join("copy");
     std::fs::create_dir_all(&copy).unwrap();
-    checkpoint::save(&copy, &t.learner, &t.replay, &v.meta).unwrap();
+    checkpoint::save(&copy, &t.agent.learner, &t.agent.replay, &v.meta).unwrap();
     for f in checkpoint::FILES.iter().chain([&checkpoint::SUMS]) {
         let a = std::fs::read(run.join("checkpoint").join(f)).unwrap();
         let b = std::fs::read(copy.join("checkpoint").join(f)).unwrap();
@@ -44,7 +44,10 @@ fn restore_then_save_gives_the_same_bytes() {
     assert_eq!(st.tensor("target_critic.out.w").unwrap().shape(), &[32, 1]);
     let w = st.tensor("actor.l1.w").unwrap();
     let first = f32::from_le_bytes(w.data()[..4].try_into().unwrap());
-    assert_eq!(first.to_bits(), t.learner.live.actor.l1.w[0][0].to_bits());
+    assert_eq!(
+        first.to_bits(),
+        t.agent.learner.live.actor.l1.w[0][0].to_bits()
+    );
     let bytes = std::fs::read(run.join("checkpoint/replay.safetensors")).unwrap();
     let st = SafeTensors::deserialize(&bytes).unwrap();
     assert_eq!(st.tensor("obs").unwrap().shape(), &[2000, 5]);

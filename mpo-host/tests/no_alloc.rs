@@ -50,7 +50,11 @@ fn collect_and_learn_allocate_nothing() {
         // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).
         t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
         let after = ALLOCS.load(Ordering::SeqCst);
-        assert!(t.learner.updates >= 400, "updates {}", t.learner.updates);
+        assert!(
+            t.agent.learner.updates >= 400,
+            "updates {}",
+            t.agent.learner.updates
+        );
         assert_eq!(
             after - before,
             0,

@@ -94,6 +94,43 @@ pub fn read_exact(fd: u32, buf: &mut [u8]) -> Result<bool, ()> {
     Ok(true)
 }
 
+/// A zero-initialised static (it lands in `.bss`), handed out once as `&'static mut T`: how a
+/// freestanding binary holds state too big for its stack (the device trainer's learner and
+/// replay) without an allocator. `T` must be valid all-zero ([`bytemuck::Zeroable`]).
+pub struct ZeroedStatic<T> {
+    taken: core::sync::atomic::AtomicBool,
+    cell: core::cell::UnsafeCell<core::mem::MaybeUninit<T>>,
+}
+
+// SAFETY: the value is reachable only through the one `&'static mut` that `take` hands out.
+unsafe impl<T: Send> Sync for ZeroedStatic<T> {}
+
+impl<T: bytemuck::Zeroable> ZeroedStatic<T> {
+    /// The all-zero value.
+    pub const fn new() -> Self {
+        Self {
+            taken: core::sync::atomic::AtomicBool::new(false),
+            cell: core::cell::UnsafeCell::new(core::mem::MaybeUninit::zeroed()),
+        }
+    }
+
+    /// The value, the first time; `None` after that.
+    pub fn take(&'static self) -> Option<&'static mut T> {
+        if self.taken.swap(true, core::sync::atomic::Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: all-zero is a valid `T` (`Zeroable`), and the flag makes this the only
+        // reference ever created.
+        Some(unsafe { (*self.cell.get()).assume_init_mut() })
+    }
+}
+
+impl<T: bytemuck::Zeroable> Default for ZeroedStatic<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// `exit_group(2)`.
 pub fn exit(code: i32) -> ! {
     // SAFETY: exit_group(2) does not return.
