@@ -217,6 +217,16 @@ pub struct TrainArgs {
     /// for any number: only the speed changes.
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
+    /// Learn on a device instead of in this process: CMD (a program and its arguments) is the
+    /// device trainer (freestanding/trainer, built for the `mcu` row), talking framed records
+    /// on its stdin/stdout. Same results as the run in-process (docs/device.md). Checkpoints of
+    /// a device run hold the parameters fetched at each evaluation, not the device's replay
+    /// or optimiser state: they evaluate and export, they do not resume.
+    #[arg(long, value_name = "CMD")]
+    pub device: Option<String>,
+    /// With --device: seconds to wait for each reply before sending the request again.
+    #[arg(long, value_name = "S", default_value_t = 10.0, requires = "device")]
+    pub device_timeout: f64,
     /// Controller placement: `--controller ipc` acts through a controller process in
     /// lockstep, with the same results as in-process training.
     #[command(flatten)]

@@ -218,6 +218,22 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
             None => crate::pool::Pool::available(),
         },
         render,
+        device: match &args.device {
+            None => None,
+            Some(_) if args.resume.is_some() => {
+                return Err(SettingsError::Invalid(
+                    "--device runs start fresh: a device's replay and optimiser state are not checkpointed, so they cannot be resumed".into(),
+                )
+                .into());
+            }
+            Some(_) if !(args.device_timeout.is_finite() && args.device_timeout > 0.0) => {
+                return Err(SettingsError::Invalid("--device-timeout must be positive".into()).into());
+            }
+            Some(cmd) => Some(crate::train::DeviceOptions {
+                cmd: cmd.clone(),
+                timeout: Duration::from_secs_f64(args.device_timeout),
+            }),
+        },
     };
     Ok(tasks::visit(&task, &net, TrainVisitor(req))??)
 }

@@ -9,6 +9,7 @@ pub mod checkpoint;
 pub mod cli;
 pub mod commands;
 pub mod contact_sheet;
+pub mod device;
 pub mod eval;
 pub mod link;
 pub mod metrics;

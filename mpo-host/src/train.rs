@@ -28,6 +28,7 @@ use crate::metrics::{self, MetricsRow, StatsAccumulator};
 use crate::pool::PoolParallel;
 use crate::settings::Settings;
 use crate::tasks::{Row, RowVisitor};
+use mpo_core::params::Params;
 
 /// Mixed into the run's seed for the collector and sampler root (the learner uses the seed
 /// itself), so the streams differ.
@@ -77,6 +78,9 @@ pub enum TrainError {
     /// Pushing parameters to the controller failed.
     #[error("controller link: {0}")]
     Link(#[from] mpo_link::LinkError),
+    /// The device trainer (`--device`) failed.
+    #[error(transparent)]
+    Device(#[from] crate::device::DeviceError),
     /// Sizes of the task table and the simulator disagree (a bug in the table).
     #[error("internal: {0}")]
     Internal(String),
@@ -109,6 +113,9 @@ pub struct Summary {
     /// The controller link's counters with `--controller ipc` (absent in-process).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub controller: Option<LinkReport>,
+    /// The device link's counters with `--device` (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<crate::device::DeviceReport>,
 }
 
 /// What `mpo train` was asked to do.
@@ -127,8 +134,19 @@ pub struct TrainRequest<'a> {
     pub link: Option<LinkOptions>,
     /// Threads of the learner (results do not depend on it).
     pub threads: usize,
+    /// Learn on a device program instead of in-process (`--device CMD`).
+    pub device: Option<DeviceOptions>,
     /// `--render-every N`: contact sheets of the evaluation policy (`crate::render`).
     pub render: Option<crate::render::EvaluationStrips>,
+}
+
+/// How to run the device trainer (`--device`).
+#[derive(Clone, Debug)]
+pub struct DeviceOptions {
+    /// The program and its arguments.
+    pub cmd: String,
+    /// How long to wait for each reply before asking again.
+    pub timeout: std::time::Duration,
 }
 
 /// Why one step of [`Trainer::collect`] failed.
@@ -140,6 +158,8 @@ pub enum StepError {
     Update(String),
     /// Parameters could not be pushed to the controller process.
     Link(mpo_link::LinkError),
+    /// The device trainer failed.
+    Device(crate::device::DeviceError),
 }
 
 /// The act-and-learn state of a run with the row's types.
@@ -179,6 +199,11 @@ pub struct Trainer<
     pub link: Option<Link>,
     /// The controller's policy is older than the learner's (pushed before the next request).
     params_dirty: bool,
+    /// The device trainer, when learning on one (`--device`): it holds the learning agent;
+    /// `agent` then only mirrors its parameters and counters.
+    pub device: Option<crate::device::Device>,
+    /// With a device: the action it chose for the current state, and its log-density.
+    device_action: [f32; ACT],
 }
 
 impl<
@@ -265,6 +290,8 @@ impl<
             action_penalty: settings.schedule.action_penalty as f32,
             link: None,
             params_dirty: true,
+            device: None,
+            device_action: [0.0; ACT],
         })
     }
 
@@ -305,6 +332,26 @@ impl<
         episodes: u32,
     ) -> Result<Vec<f64>, TrainError> {
         self.sync_controller()?;
+        if let Some(dev) = self.device.as_mut() {
+            let mut err = None;
+            let returns = evaluate_with(
+                task,
+                seed,
+                episodes,
+                |o: &[f32; OBS], a: &mut [f32; ACT]| {
+                    if err.is_none()
+                        && let Err(e) = dev.eval(o, a)
+                    {
+                        err = Some(e);
+                    }
+                },
+            )?;
+            if let Some(e) = err {
+                return Err(e.into());
+            }
+            self.fetch_device_params()?;
+            return Ok(returns);
+        }
         Ok(match self.link.as_mut() {
             Some(link) => evaluate_with(
                 task,
@@ -322,6 +369,9 @@ impl<
     /// updates the schedule calls for. Allocates nothing (through a controller process:
     /// nothing while it answers).
     pub fn collect(&mut self, steps: u64) -> Result<(), StepError> {
+        if self.device.is_some() {
+            return self.collect_on_device(steps);
+        }
         let mut obs = [0f32; OBS];
         let mut act = [0f32; ACT];
         for _ in 0..steps {
@@ -370,6 +420,98 @@ impl<
             }
             self.observe(&t).map_err(StepError::Update)?;
         }
+        Ok(())
+    }
+
+    /// [`Trainer::collect`] with the agent on the device: the host steps the plant, sends each
+    /// outcome and gets the next action.
+    fn collect_on_device(&mut self, steps: u64) -> Result<(), StepError> {
+        let mut obs = [0f32; OBS];
+        let mut next = [0f32; OBS];
+        for _ in 0..steps {
+            let dev = self.device.as_mut().expect("checked");
+            if !self.in_episode {
+                self.env.reset(&mut self.obs64);
+                for (o, x) in obs.iter_mut().zip(&self.obs64) {
+                    *o = *x as f32;
+                }
+                dev.begin(&obs, &mut self.device_action)
+                    .map_err(StepError::Device)?;
+                self.in_episode = true;
+                self.episode_step = 0;
+            }
+            let act = self.device_action;
+            for (o, a) in self.act64.iter_mut().zip(&act) {
+                *o = a.clamp(-1.0, 1.0) as f64;
+            }
+            let step = self
+                .env
+                .try_step(&self.act64, &mut self.next64)
+                .map_err(StepError::Sim)?;
+            let mut excess = 0f32;
+            for (a, c) in act.iter().zip(&self.act64) {
+                excess += (a - *c as f32) * (a - *c as f32);
+            }
+            for (o, x) in next.iter_mut().zip(&self.next64) {
+                *o = *x as f32;
+            }
+            let reward = step.reward as f32 - self.action_penalty * excess;
+            dev.step(
+                reward,
+                step.discount as f32,
+                step.last,
+                &next,
+                &mut self.device_action,
+            )
+            .map_err(StepError::Device)?;
+            core::mem::swap(&mut self.obs64, &mut self.next64);
+            self.episode_step += 1;
+            self.agent.env_steps += 1;
+            if step.last {
+                self.in_episode = false;
+                self.episodes += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Copies the device's parameters and counters into the mirror `agent` (for the
+    /// checkpoint, the metrics and `params_sha256`).
+    fn fetch_device_params(&mut self) -> Result<(), TrainError> {
+        let Some(dev) = self.device.as_mut() else {
+            return Ok(());
+        };
+        let mut flat = vec![0f32; dev.param_count()];
+        let c = dev.params(&mut flat)?;
+        let live = &mut self.agent.learner.live;
+        let mut it = flat.into_iter();
+        live.actor
+            .visit_mut(&mut |t| t.iter_mut().for_each(|x| *x = it.next().unwrap_or(0.0)));
+        live.critic
+            .visit_mut(&mut |t| t.iter_mut().for_each(|x| *x = it.next().unwrap_or(0.0)));
+        self.agent.learner.updates = c.updates;
+        if c.env_steps != self.agent.env_steps {
+            return Err(TrainError::Internal(format!(
+                "the device counted {} environment steps, the host {}",
+                c.env_steps, self.agent.env_steps
+            )));
+        }
+        Ok(())
+    }
+
+    /// Learns on a device program from now on (a fresh run: the device starts from the
+    /// run's seed).
+    pub fn attach_device(
+        &mut self,
+        mut dev: crate::device::Device,
+        settings: &Settings,
+    ) -> Result<(), TrainError> {
+        dev.configure(
+            &settings.mpo.to_config(),
+            &agent_schedule(settings),
+            settings.seed,
+        )?;
+        self.device = Some(dev);
         Ok(())
     }
 
@@ -524,6 +666,12 @@ fn run<
             opts.wait.name()
         );
         t.attach(link);
+    }
+    if let Some(opts) = &req.device {
+        let params = t.agent.learner.live.actor.len() + t.agent.learner.live.critic.len();
+        let dev = crate::device::Device::start(&opts.cmd, OBS, ACT, params, opts.timeout)?;
+        eprintln!("learning on the device `{}`", opts.cmd);
+        t.attach_device(dev, &settings)?;
     }
     let (mut metrics_rows, wall0, mut last_checkpoint) = match &req.resume {
         Some(v) => (
@@ -684,6 +832,7 @@ fn run<
             return Err(match e {
                 StepError::Sim(s) => TrainError::Sim(s),
                 StepError::Link(l) => TrainError::Link(l),
+                StepError::Device(d) => TrainError::Device(d),
                 StepError::Update(what) => TrainError::NonFinite {
                     update: t.agent.learner.updates,
                     env_steps: t.env_steps(),
@@ -786,5 +935,6 @@ fn run<
         out: out.display().to_string(),
         interrupted,
         controller,
+        device: t.device.as_ref().map(|d| d.report.clone()),
     })
 }

@@ -113,10 +113,10 @@ fn main() -> i32 {
                 }
                 Event::Rejected(f) => {
                     // Damaged: the sequence number cannot be trusted; the host repeats its
-                    // request, which is then new (not answered yet).
+                    // request, which is then new (not answered yet). This `ERROR` is not a
+                    // reply to a request, so it is not kept for repeats.
                     d.counters.rejected = rx.rejected;
-                    d.seq = d.last_seq.map_or(0, |s| s.wrapping_add(1));
-                    d.error(f)
+                    d.transport_error(f)
                 }
             };
             if !ok {
@@ -257,13 +257,28 @@ impl Device {
         self.send(kind::ACK, &b)
     }
 
-    fn error(&mut self, f: Fault) -> bool {
+    fn error_payload(&self, f: Fault) -> [u8; 1 + COUNTERS_LEN] {
         let mut b = [0u8; 1 + COUNTERS_LEN];
         b[0] = f as u8;
         let mut c = [0u8; COUNTERS_LEN];
         self.counters.encode(&mut c);
         b[1..].copy_from_slice(&c);
+        b
+    }
+
+    /// `ERROR` as the reply to a verified request (kept for repeats).
+    fn error(&mut self, f: Fault) -> bool {
+        let b = self.error_payload(f);
         self.send(kind::ERROR, &b)
+    }
+
+    /// `ERROR` for a damaged frame: numbered as the next request would be, not kept.
+    fn transport_error(&mut self, f: Fault) -> bool {
+        let b = self.error_payload(f);
+        let seq = self.last_seq.map_or(0, |s| s.wrapping_add(1));
+        let mut out = [0u8; REPLY_CAP];
+        let n = encode(kind::ERROR, seq, &b, &mut out);
+        mpo_rt::write_all(1, &out[..n])
     }
 
     /// Encodes, keeps (for `RESEND`) and writes a small reply.

@@ -1,0 +1,292 @@
+//! `mpo train --net mcu --device PATH`: the learner on the freestanding device trainer
+//! (`freestanding/trainer`: no std, no allocator, everything in `.bss`), the plant here.
+//!
+//! Builds the trainer (release, baseline x86-64 CPU), then: the device run has the bits of the
+//! in-process run; damaged and truncated frames in both directions are detected, counted and
+//! recovered from with the same bits; a dying device is a clear error; the device answers
+//! malformed and out-of-order commands with `ERROR` frames and goes on; the build fails when
+//! `alloc` or `std` enter.
+
+mod common;
+use common::*;
+
+use std::io::{Read, Write};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+
+use mpo_frames::{Event, Fault, Receiver, encode, kind};
+
+fn target_dir() -> PathBuf {
+    mpo_integration::workspace_root().join("target/freestanding")
+}
+
+fn build(features: &str) -> std::process::Output {
+    mpo_integration::build_freestanding("trainer", features, &[], &target_dir())
+}
+
+/// The device trainer, built once per test binary.
+fn trainer() -> PathBuf {
+    static BUILT: std::sync::Once = std::sync::Once::new();
+    BUILT.call_once(|| {
+        let out = build("");
+        assert!(
+            out.status.success(),
+            "device trainer build failed:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    });
+    target_dir().join("x86_64-unknown-linux-gnu/release/mpo-trainer")
+}
+
+/// `mpo train --net mcu` for `steps` steps into `dir`, on the device when `device` is set.
+fn mcu(dir: &std::path::Path, steps: u64, device: bool, env: &[(&str, &str)]) -> serde_json::Value {
+    let steps = steps.to_string();
+    let bin = trainer();
+    let mut args = vec![
+        "train",
+        "--net",
+        "mcu",
+        "--threads",
+        "1",
+        "--no-progress",
+        "--steps",
+        &steps,
+        "--out",
+        dir.to_str().unwrap(),
+    ];
+    if device {
+        args.extend_from_slice(&[
+            "--device",
+            bin.to_str().unwrap(),
+            "--device-timeout",
+            "0.05",
+        ]);
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args(&args)
+        .envs(env.iter().copied())
+        .output()
+        .expect("spawn mpo");
+    ok_json(&out)
+}
+
+#[test]
+fn device_run_equals_the_in_process_run_bit_for_bit() {
+    let d = scratch("device-same-bits");
+    let here = mcu(&d.join("here"), 4000, false, &[]);
+    let there = mcu(&d.join("device"), 4000, true, &[]);
+    assert_eq!(there["params_sha256"], here["params_sha256"]);
+    assert_eq!(there["updates"], here["updates"]);
+    assert_eq!(there["eval_return_mean"], here["eval_return_mean"]);
+    let dev = &there["device"];
+    assert_eq!(dev["retries"], 0, "{dev}");
+    assert_eq!(dev["rejected_by_host"], 0);
+    assert_eq!(dev["rejected_by_device"], 0);
+    // Every metrics row agrees but the wall clock and the learner statistics (the device does
+    // not send them).
+    let rows = |p: PathBuf| -> Vec<(u64, u64, f64)> {
+        std::fs::read_to_string(p.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                (
+                    v["env_steps"].as_u64().unwrap(),
+                    v["updates"].as_u64().unwrap(),
+                    v["eval_return_mean"].as_f64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(rows(d.join("here")), rows(d.join("device")));
+}
+
+#[test]
+fn damaged_and_truncated_frames_both_ways_are_counted_and_recovered_from() {
+    let d = scratch("device-damage");
+    let clean = mcu(&d.join("clean"), 2000, false, &[]);
+    // Every 7th frame to the device damaged (a flipped byte, or only its first half, in
+    // turn); every 5th frame from it damaged (a flipped or a dropped byte, in turn).
+    let damaged = mcu(
+        &d.join("damaged"),
+        2000,
+        true,
+        &[
+            ("MPO_TEST_DAMAGE_EVERY", "7"),
+            ("MPO_TEST_DAMAGE_REPLIES_EVERY", "5"),
+        ],
+    );
+    assert_eq!(damaged["params_sha256"], clean["params_sha256"]);
+    let dev = &damaged["device"];
+    eprintln!("damaged link: {dev}");
+    for k in [
+        "retries",
+        "rejected_by_host",
+        "rejected_by_device",
+        "repeats_answered",
+    ] {
+        assert!(dev[k].as_u64().unwrap() > 100, "{k}: {dev}");
+    }
+}
+
+#[test]
+fn a_dying_device_is_a_clear_error_and_the_last_checkpoint_stays() {
+    let d = scratch("device-dies");
+    // The device's line goes dead after 600 kB of replies (`dd` passes them on byte by byte; about 18 bytes an action, 10,000 evaluation actions per evaluation): past the first checkpoint (at
+    // 5000 steps), before the second.
+    let bin = trainer();
+    let script = d.join("dying-device.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\n{} | dd bs=1 count=600000 status=none\n",
+            shell_quote(&bin.display().to_string())
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let cmd = script.display().to_string();
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args([
+            "train",
+            "--net",
+            "mcu",
+            "--no-progress",
+            "--steps",
+            "20000",
+            "--out",
+        ])
+        .arg(d.join("run"))
+        .args(["--device", &cmd, "--device-timeout", "0.2"])
+        .output()
+        .unwrap();
+    let e = err_text(&out);
+    assert!(e.contains("the device stopped"), "{e}");
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(d.join("run/checkpoint/meta.json")).expect("a checkpoint"),
+    )
+    .unwrap();
+    assert_eq!(meta["env_steps"], 5000, "the last checkpoint fetched stays");
+    // A program that does not exist.
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args([
+            "train",
+            "--net",
+            "mcu",
+            "--no-progress",
+            "--steps",
+            "2000",
+            "--out",
+        ])
+        .arg(d.join("run2"))
+        .args(["--device", "/nonexistent/trainer"])
+        .output()
+        .unwrap();
+    let e = err_text(&out);
+    assert!(e.contains("cannot start the device program"), "{e}");
+    // --device cannot resume.
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args(["train", "--resume"])
+        .arg(d.join("run"))
+        .args(["--device", bin.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(err_text(&out).contains("cannot be resumed"));
+    // A device for other sizes: the hopper row against the cartpole trainer.
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args([
+            "train",
+            "--task",
+            "hopper-stand",
+            "--net",
+            "small",
+            "--no-progress",
+            "--out",
+        ])
+        .arg(d.join("run3"))
+        .args(["--device", bin.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let e = err_text(&out);
+    assert!(e.contains("the device reports 5 observations"), "{e}");
+}
+
+fn shell_quote(s: &str) -> String {
+    format!("'{}'", s.replace('\'', "'\\''"))
+}
+
+/// Talks to the device binary directly: frames in, frames out.
+#[test]
+fn malformed_and_out_of_order_commands_get_error_frames() {
+    let mut child = Command::new(trainer())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    fn frame(input: &mut Vec<u8>, k: u8, seq: u8, payload: &[u8]) {
+        let mut out = vec![0u8; 256];
+        let n = encode(k, seq, payload, &mut out);
+        input.extend_from_slice(&out[..n]);
+    }
+    let mut input = Vec::new();
+    frame(&mut input, kind::HELLO, 1, &[]); // INFO
+    frame(&mut input, kind::STEP, 2, &[0; 29]); // before START: OutOfOrder
+    frame(&mut input, kind::EVAL, 3, &[0; 19]); // wrong length: Length (rejected)
+    frame(&mut input, 0x42, 4, &[]); // unknown kind
+    frame(&mut input, kind::PARAMS, 5, &[]); // PARAMS works before START
+    let mut bad = vec![0u8; 256];
+    let n = encode(kind::HELLO, 6, &[], &mut bad);
+    bad[2] ^= 0x01; // a flipped bit: Checksum
+    input.extend_from_slice(&bad[..n]);
+    frame(&mut input, kind::HELLO, 6, &[]); // the same request again, intact: INFO
+    frame(&mut input, kind::HELLO, 6, &[]); // a repeat: the last reply again
+    let mut stdin = child.stdin.take().unwrap();
+    stdin.write_all(&input).unwrap();
+    drop(stdin);
+    let mut bytes = Vec::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_end(&mut bytes)
+        .unwrap();
+    assert!(
+        child.wait().unwrap().success(),
+        "the device exits cleanly at end of input"
+    );
+    let params = 2 * 1313 + 1; // actor 1314, critic 1313
+    let mut rx = Box::new(Receiver::<20_000>::new(5, 1, params));
+    let mut got = Vec::new();
+    for b in bytes {
+        if let Event::Frame(k, s) = rx.push(b) {
+            let code = (k == kind::ERROR).then(|| Fault::from_code(rx.payload()[0]).unwrap());
+            got.push((k, s, code));
+        }
+    }
+    assert_eq!(rx.rejected, 0, "the device's own frames are intact");
+    let (e, seq_after) = (kind::ERROR, |s: u8| s + 1);
+    assert_eq!(
+        got,
+        [
+            (kind::INFO, 1, None),
+            (e, 2, Some(Fault::OutOfOrder)),
+            (e, seq_after(2), Some(Fault::Length)),
+            (e, seq_after(2), Some(Fault::UnknownKind)),
+            (kind::PARAMS_REPLY, 5, None),
+            (e, seq_after(5), Some(Fault::Checksum)),
+            (kind::INFO, 6, None),
+            (kind::INFO, 6, None),
+        ]
+    );
+}
+
+#[test]
+fn trainer_build_fails_when_alloc_or_std_enter() {
+    mpo_integration::assert_builds_fail(
+        &[
+            ("use-alloc", "no global memory allocator"),
+            ("use-std", "duplicate lang item"),
+        ],
+        build,
+    );
+}
