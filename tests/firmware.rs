@@ -39,6 +39,9 @@ fn check_profile<const OBS: usize, const ACT: usize, const TRI: usize>(name: &st
         o.iter_mut().for_each(|x| *x *= scale);
     }
     obs[1234][0] = f32::NAN;
+    // Finite but huge: the network overflows, so the safe action is expected (found by the
+    // fuzz target `firmware_records`).
+    obs[1500] = [f32::from_bits(0x7f7f_7f7f); OBS];
     let input: Vec<u8> = obs.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
     let mut child = Command::new(&bin)
         .stdin(Stdio::piped())
@@ -59,6 +62,7 @@ fn check_profile<const OBS: usize, const ACT: usize, const TRI: usize>(name: &st
         obs.len() * ACT * 4,
         "one action per observation"
     );
+    let mut overflowed = false;
     for (k, (o, bytes)) in obs
         .iter()
         .zip(result.stdout.chunks_exact(ACT * 4))
@@ -67,6 +71,11 @@ fn check_profile<const OBS: usize, const ACT: usize, const TRI: usize>(name: &st
         let mut want = [0f32; ACT];
         if o.iter().all(|x| x.is_finite()) {
             actor.mean_action(o, &mut want);
+            if !want.iter().all(|x| x.is_finite()) {
+                assert_eq!(k, 1500, "{name}: only the huge record overflows");
+                overflowed = true;
+                want = [0.0; ACT];
+            }
         }
         for j in 0..ACT {
             let got = f32::from_le_bytes(bytes[4 * j..4 * j + 4].try_into().unwrap());
@@ -78,6 +87,10 @@ fn check_profile<const OBS: usize, const ACT: usize, const TRI: usize>(name: &st
             );
         }
     }
+    assert!(
+        overflowed,
+        "{name}: the huge record must overflow the policy"
+    );
     // A truncated record is an error, not a silent action.
     let mut child = Command::new(&bin)
         .stdin(Stdio::piped())

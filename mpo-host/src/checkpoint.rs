@@ -13,8 +13,14 @@
 //! re-parsed. Checkpoints are written only at episode boundaries: an environment's
 //! `RandomState` advances on every reset and sim-bridge exposes no setter for it, so the
 //! training environment is restored by recreating it from its seed and replaying its
-//! `episodes` resets. A new checkpoint is written beside the old one and swapped in by
-//! renames, so an interrupted write leaves the previous checkpoint intact.
+//! `episodes` resets.
+//!
+//! Crash safety: a new checkpoint is written into `checkpoint.tmp/`, every file and the
+//! directory fsynced, `SHA256SUMS` last (its presence marks a complete write), then swapped in
+//! by two renames (`checkpoint/` -> `checkpoint.old/`, `checkpoint.tmp/` -> `checkpoint/`) and
+//! the run directory fsynced before `checkpoint.old/` is removed. A crash at any moment leaves
+//! at least one complete checkpoint among the three directories; [`open`] picks the newest
+//! complete one, and the next [`save`] first finishes an interrupted swap ([`CANDIDATES`]).
 
 use std::collections::HashMap;
 use std::fs;
@@ -37,6 +43,14 @@ pub const FORMAT: &str = "mpo-checkpoint";
 pub const VERSION: u32 = 2;
 /// The checkpoint's subdirectory in a run directory.
 pub const SUBDIR: &str = "checkpoint";
+/// Where a checkpoint can be found in a run directory after a crash, in order of preference
+/// between checkpoints of the same environment step: the live one, a complete new one whose
+/// swap was interrupted, the previous one whose removal was interrupted.
+pub const CANDIDATES: [&str; 3] = ["checkpoint", "checkpoint.tmp", "checkpoint.old"];
+/// Test hook: milliseconds [`save`] sleeps before each file it writes and before each rename
+/// or removal of the swap, so a test can kill the process inside that window. Read only by
+/// [`save`]; unset (the normal case) means no pause.
+pub const PAUSE_ENV: &str = "MPO_TEST_CHECKPOINT_PAUSE_MS";
 /// The checksum file.
 pub const SUMS: &str = "SHA256SUMS";
 /// The checksummed files, in the order they are listed.
@@ -52,15 +66,19 @@ pub const FILES: [&str; 4] = [
 #[non_exhaustive]
 pub enum CheckpointError {
     /// Reading or writing failed.
-    #[error("{path}: {source}")]
+    // The cause is part of the message and not a `source()`: `mpo` prints error chains, which
+    // would repeat it.
+    #[error("{path}: {cause}")]
     Io {
         /// File.
         path: PathBuf,
         /// Cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// No checkpoint where one was expected.
-    #[error("no checkpoint in {path} (expected {path}/{SUBDIR}/{SUMS} or {path}/{SUMS})")]
+    #[error(
+        "no checkpoint in {path} (expected {path}/{SUBDIR}/{SUMS}, or after a crash {path}/{SUBDIR}.tmp/{SUMS} or {path}/{SUBDIR}.old/{SUMS}, or {path}/{SUMS})"
+    )]
     NotFound {
         /// Directory.
         path: PathBuf,
@@ -291,23 +309,110 @@ impl<'a> Reader<'a> {
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
-    move |source| CheckpointError::Io {
+    move |cause| CheckpointError::Io {
         path: path.to_path_buf(),
-        source,
+        cause,
     }
 }
 
-/// The checkpoint directory inside a run directory (or the directory itself if it is one).
+/// The checkpoint directories in `dir` that carry a checksum list: `dir` itself if it is a
+/// checkpoint directory, else those of [`CANDIDATES`] inside it (a run directory), in that
+/// order. Complete or not: [`open`] verifies.
+pub fn candidates(dir: &Path) -> Vec<PathBuf> {
+    if dir.join(SUMS).exists() {
+        return vec![dir.to_path_buf()];
+    }
+    CANDIDATES
+        .iter()
+        .map(|c| dir.join(c))
+        .filter(|d| d.join(SUMS).exists())
+        .collect()
+}
+
+/// The first checkpoint directory of [`candidates`] (whether it verifies is [`open`]'s job).
 pub fn locate(dir: &Path) -> Result<PathBuf, CheckpointError> {
-    if dir.join(SUBDIR).join(SUMS).exists() {
-        Ok(dir.join(SUBDIR))
-    } else if dir.join(SUMS).exists() {
-        Ok(dir.to_path_buf())
-    } else {
-        Err(CheckpointError::NotFound {
+    candidates(dir)
+        .into_iter()
+        .next()
+        .ok_or_else(|| CheckpointError::NotFound {
             path: dir.to_path_buf(),
         })
+}
+
+/// The run directory a checkpoint directory belongs to (its parent if it is one of
+/// [`CANDIDATES`], else the directory itself).
+pub fn run_dir_of(checkpoint_dir: &Path) -> PathBuf {
+    match (checkpoint_dir.file_name(), checkpoint_dir.parent()) {
+        (Some(n), Some(p)) if CANDIDATES.iter().any(|c| n == *c) => p.to_path_buf(),
+        _ => checkpoint_dir.to_path_buf(),
     }
+}
+
+/// fsync of a directory, so the entries created, renamed or removed in it are durable.
+pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    fs::File::open(dir)?.sync_all()
+}
+
+/// Writes `bytes` to a new file at `path` and fsyncs it (not its directory).
+fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut f = fs::File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+/// The pause of the [`PAUSE_ENV`] test hook, read once per [`save`].
+fn test_pause() -> Option<std::time::Duration> {
+    let ms: u64 = std::env::var(PAUSE_ENV).ok()?.parse().ok()?;
+    (ms > 0).then(|| std::time::Duration::from_millis(ms))
+}
+
+/// Finishes what a crash interrupted, so that `checkpoint/` is the newest complete checkpoint
+/// of `run_dir` (as [`open`] chooses it) and nothing else is left: a complete newer
+/// `checkpoint.tmp/` (or, if `checkpoint/` does not verify, `checkpoint.old/`) is renamed into
+/// place, older or partial ones are removed. [`save`] does this before it writes, and
+/// `mpo train --resume` before it continues in the same directory. If no candidate is
+/// complete, nothing is touched. Nothing is read in the normal state (no `checkpoint.tmp/` or
+/// `checkpoint.old/`).
+pub fn settle(run_dir: &Path) -> Result<(), CheckpointError> {
+    let [fin, tmp, old] = CANDIDATES.map(|c| run_dir.join(c));
+    if !tmp.exists() && !old.exists() {
+        return Ok(());
+    }
+    let Ok(best) = open(run_dir) else {
+        return Ok(()); // nothing complete: keep everything for inspection
+    };
+    let rename = |a: &Path, b: &Path| fs::rename(a, b).map_err(io(a));
+    let remove = |d: &Path| {
+        if d.exists() {
+            fs::remove_dir_all(d).map_err(io(d))
+        } else {
+            Ok(())
+        }
+    };
+    if best.dir == tmp {
+        remove(&old)?;
+        if fin.exists() {
+            rename(&fin, &old)?;
+        }
+        rename(&tmp, &fin)?;
+    } else if best.dir == old {
+        remove(&tmp)?;
+        if fin.exists() {
+            rename(&fin, &tmp)?;
+        }
+        rename(&old, &fin)?;
+    }
+    // `checkpoint/` is the newest complete one and durable; the rest are older or partial.
+    sync_dir(run_dir).map_err(io(run_dir))?;
+    remove(&tmp)?;
+    remove(&old)?;
+    sync_dir(run_dir).map_err(io(run_dir))
 }
 
 /// Writes a checkpoint of `learner`, `replay` and `meta` into `run_dir/checkpoint`,
@@ -402,30 +507,53 @@ pub fn save<
         opt.serialize(&meta.settings),
         rep.serialize(&meta.settings),
     ];
-    let final_dir = run_dir.join(SUBDIR);
-    let tmp = run_dir.join(format!("{SUBDIR}.tmp"));
-    let old = run_dir.join(format!("{SUBDIR}.old"));
+    settle(run_dir)?;
+    let pause = test_pause();
+    let pause = || {
+        if let Some(d) = pause {
+            std::thread::sleep(d);
+        }
+    };
+    let [final_dir, tmp, old] = CANDIDATES.map(|c| run_dir.join(c));
     if tmp.exists() {
         fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
     }
     fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    let mut sums = String::new();
-    for (name, bytes) in FILES.iter().zip(&contents) {
-        let p = tmp.join(name);
-        crate::metrics::write_atomic(&p, bytes).map_err(io(&p))?;
-        sums.push_str(&format!("{}  {name}\n", sha256_hex(bytes)));
+    // The files, each fsynced, then SHA256SUMS (whose presence marks the write complete),
+    // then the directory: only then may the swap make it the live checkpoint.
+    let written = (|| {
+        let mut sums = String::new();
+        for (name, bytes) in FILES.iter().zip(&contents) {
+            pause();
+            let p = tmp.join(name);
+            write_synced(&p, bytes).map_err(io(&p))?;
+            sums.push_str(&format!("{}  {name}\n", sha256_hex(bytes)));
+        }
+        pause();
+        let p = tmp.join(SUMS);
+        write_synced(&p, sums.as_bytes()).map_err(io(&p))?;
+        sync_dir(&tmp).map_err(io(&tmp))
+    })();
+    if let Err(e) = written {
+        // Best effort: free the space of the partial write (a full disk is the usual cause).
+        let _ = fs::remove_dir_all(&tmp);
+        return Err(e);
     }
-    let p = tmp.join(SUMS);
-    crate::metrics::write_atomic(&p, sums.as_bytes()).map_err(io(&p))?;
+    pause();
     if old.exists() {
         fs::remove_dir_all(&old).map_err(io(&old))?;
     }
+    pause();
     if final_dir.exists() {
         fs::rename(&final_dir, &old).map_err(io(&final_dir))?;
     }
+    pause();
     fs::rename(&tmp, &final_dir).map_err(io(&tmp))?;
+    sync_dir(run_dir).map_err(io(run_dir))?;
+    pause();
     if old.exists() {
         fs::remove_dir_all(&old).map_err(io(&old))?;
+        sync_dir(run_dir).map_err(io(run_dir))?;
     }
     Ok(())
 }
@@ -436,15 +564,86 @@ pub struct Verified {
     pub dir: PathBuf,
     /// Parsed metadata.
     pub meta: Meta,
+    /// Set when [`open`] chose another directory than the run's `checkpoint/` (after a
+    /// crash, or because `checkpoint/` does not verify): why, for a note to the user.
+    pub fallback: Option<String>,
     files: HashMap<&'static str, Vec<u8>>,
 }
 
-/// Reads a checkpoint (from a run directory or the checkpoint directory itself), checks every
-/// file against SHA256SUMS and the format version, and parses `meta.json`.
+/// Reads a checkpoint from a run directory or a checkpoint directory, checks every file
+/// against SHA256SUMS and the format version, and parses `meta.json`.
+///
+/// In a run directory, every one of [`CANDIDATES`] with a checksum list is verified and the
+/// complete one with the most environment steps is chosen (the live `checkpoint/` on a tie):
+/// after a crash in the middle of [`save`] that is `checkpoint.tmp/` if its write had
+/// finished, else `checkpoint/` or `checkpoint.old/`. [`Verified::fallback`] says when the
+/// choice is not `checkpoint/`. If none verifies, the error is the first candidate's.
 pub fn open(dir: &Path) -> Result<Verified, CheckpointError> {
-    let dir = locate(dir)?;
+    let found = candidates(dir);
+    let mut best: Option<Verified> = None;
+    let mut first_err = None;
+    for d in found {
+        match open_dir(&d) {
+            Ok(v) => {
+                if best
+                    .as_ref()
+                    .is_none_or(|b| v.meta.env_steps > b.meta.env_steps)
+                {
+                    best = Some(v);
+                }
+            }
+            Err(e) => {
+                first_err.get_or_insert(e);
+            }
+        }
+    }
+    match (best, first_err) {
+        (Some(mut v), err) => {
+            if v.dir.file_name().is_some_and(|n| n != SUBDIR) && v.dir != dir {
+                v.fallback = Some(match err {
+                    Some(e) => format!(
+                        "{} is not usable ({e}); using {} (environment step {})",
+                        dir.join(SUBDIR).display(),
+                        v.dir.display(),
+                        v.meta.env_steps
+                    ),
+                    None => format!(
+                        "using {} (environment step {}), the newest complete checkpoint: a crash interrupted the swap into {}",
+                        v.dir.display(),
+                        v.meta.env_steps,
+                        dir.join(SUBDIR).display()
+                    ),
+                });
+            }
+            Ok(v)
+        }
+        (None, Some(e)) => Err(e),
+        (None, None) => Err(CheckpointError::NotFound {
+            path: dir.to_path_buf(),
+        }),
+    }
+}
+
+/// [`verify`] of the files of one checkpoint directory.
+pub fn open_dir(dir: &Path) -> Result<Verified, CheckpointError> {
+    verify(dir, |name| fs::read(dir.join(name)))
+}
+
+/// Checks a checkpoint's files against its SHA256SUMS and the format version and parses
+/// `meta.json`: everything [`open`] does after reading bytes. `read(name)` returns the bytes
+/// of `SHA256SUMS` and of each of [`FILES`]; `dir` only names the files in errors. (Pure, so
+/// the fuzz target `checkpoint` reaches the decoders without a file system.)
+pub fn verify(
+    dir: &Path,
+    mut read: impl FnMut(&str) -> std::io::Result<Vec<u8>>,
+) -> Result<Verified, CheckpointError> {
+    let dir = dir.to_path_buf();
     let sums_path = dir.join(SUMS);
-    let sums = fs::read_to_string(&sums_path).map_err(io(&sums_path))?;
+    let sums = read(SUMS).map_err(io(&sums_path))?;
+    let sums = String::from_utf8(sums).map_err(|_| CheckpointError::Corrupt {
+        path: sums_path.clone(),
+        message: "not UTF-8 text".into(),
+    })?;
     let mut expected = HashMap::new();
     for line in sums.lines().filter(|l| !l.trim().is_empty()) {
         let mut parts = line.split_whitespace();
@@ -469,7 +668,7 @@ pub fn open(dir: &Path) -> Result<Verified, CheckpointError> {
                 message: format!("no checksum for {name}"),
             });
         };
-        let bytes = fs::read(&path).map_err(io(&path))?;
+        let bytes = read(name).map_err(io(&path))?;
         let got = sha256_hex(&bytes);
         if &got != want {
             return Err(CheckpointError::Checksum {
@@ -502,7 +701,12 @@ pub fn open(dir: &Path) -> Result<Verified, CheckpointError> {
         path: meta_path,
         message: e.to_string(),
     })?;
-    Ok(Verified { dir, meta, files })
+    Ok(Verified {
+        dir,
+        meta,
+        files,
+        fallback: None,
+    })
 }
 
 impl Verified {

@@ -69,27 +69,58 @@ fn str_value(t: &toml::Table, k: &str) -> Option<String> {
 
 /// The layers above the defaults: the file, `--set`s, then explicit flags.
 fn layers(args: &TrainArgs) -> Result<Vec<(String, toml::Table)>, Error> {
+    let file = match &args.config {
+        Some(p) => Some((p.display().to_string(), settings::read_table(p)?)),
+        None => None,
+    };
+    let flags = Flags {
+        task: args.task.clone(),
+        net: args.net.clone(),
+        seed: args.seed,
+        steps: args.steps,
+    };
+    layers_from(file, &args.set, &flags)
+}
+
+/// The explicit flags of `mpo train` that set configuration keys.
+#[derive(Clone, Debug, Default)]
+pub struct Flags {
+    /// `--task`.
+    pub task: Option<String>,
+    /// `--net`.
+    pub net: Option<String>,
+    /// `--seed`.
+    pub seed: Option<u32>,
+    /// `--steps`.
+    pub steps: Option<u64>,
+}
+
+/// The configuration layers above the task table's defaults, lowest first: the parsed
+/// `--config` file `(origin, table)`, each `--set KEY=VALUE`, then the explicit flags.
+pub fn layers_from(
+    file: Option<(String, toml::Table)>,
+    sets: &[String],
+    flags: &Flags,
+) -> Result<Vec<(String, toml::Table)>, Error> {
     let mut out = Vec::new();
-    if let Some(p) = &args.config {
-        out.push((p.display().to_string(), settings::read_table(p)?));
-    }
-    for s in &args.set {
+    out.extend(file);
+    for s in sets {
         out.push((format!("--set {s}"), settings::parse_set(s)?));
     }
-    let mut flags = toml::Table::new();
-    if let Some(t) = &args.task {
-        flags.insert("task".into(), t.clone().into());
+    let mut t = toml::Table::new();
+    if let Some(v) = &flags.task {
+        t.insert("task".into(), v.clone().into());
     }
-    if let Some(n) = &args.net {
-        flags.insert("net".into(), n.clone().into());
+    if let Some(n) = &flags.net {
+        t.insert("net".into(), n.clone().into());
     }
-    if let Some(s) = args.seed {
-        flags.insert("seed".into(), (s as i64).into());
+    if let Some(s) = flags.seed {
+        t.insert("seed".into(), (s as i64).into());
     }
-    if let Some(s) = args.steps {
-        flags.insert("steps".into(), (s as i64).into());
+    if let Some(s) = flags.steps {
+        t.insert("steps".into(), (s as i64).into());
     }
-    out.push(("flags".into(), flags));
+    out.push(("flags".into(), t));
     Ok(out)
 }
 
@@ -116,6 +147,16 @@ pub fn defaults(row: &Row) -> Settings {
     }
 }
 
+/// [`checkpoint::open`], with a note on stderr when a crash (or a corrupt `checkpoint/`) made
+/// it choose `checkpoint.tmp/` or `checkpoint.old/`.
+fn open_checkpoint(dir: &Path) -> Result<Verified, Error> {
+    let v = checkpoint::open(dir)?;
+    if let Some(note) = &v.fallback {
+        eprintln!("note: {note}");
+    }
+    Ok(v)
+}
+
 fn episode_steps(task: &str) -> Result<u64, Error> {
     Ok(sim_bridge::task_spec(task)?.episode_steps as u64)
 }
@@ -124,58 +165,15 @@ fn episode_steps(task: &str) -> Result<u64, Error> {
 pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Verified>), Error> {
     let layers = layers(args)?;
     if let Some(dir) = &args.resume {
-        let v = checkpoint::open(dir)?;
-        let base = v.meta.settings.to_table();
-        let merged = apply(&base, &layers)?;
-        let diffs = settings::differences(&base, &merged, "", &["steps"]);
-        if !diffs.is_empty() {
-            return Err(SettingsError::Mismatch {
-                dir: v.dir.display().to_string(),
-                differences: diffs,
-            }
-            .into());
-        }
-        let s = Settings::from_table(merged, "resumed configuration")?;
-        let row = tasks::row(&s.task, &s.net)?;
-        if v.meta.sizes != row.sizes {
-            return Err(SettingsError::Mismatch {
-                dir: v.dir.display().to_string(),
-                differences: vec![format!(
-                    "network sizes are {:?} in the checkpoint, {:?} in this build's task table",
-                    v.meta.sizes, row.sizes
-                )],
-            }
-            .into());
-        }
-        s.validate(episode_steps(&s.task)?, &row.sizes)?;
-        if s.steps < v.meta.env_steps {
-            return Err(SettingsError::Invalid(format!(
-                "steps = {} is below the checkpoint's {} environment steps",
-                s.steps, v.meta.env_steps
-            ))
-            .into());
-        }
-        let run_dir = if v.dir.file_name().is_some_and(|n| n == checkpoint::SUBDIR) {
-            v.dir
-                .parent()
-                .map(Path::to_path_buf)
-                .unwrap_or_else(|| dir.clone())
-        } else {
-            dir.clone()
-        };
-        let out = args.out.clone().unwrap_or(run_dir);
+        let v = open_checkpoint(dir)?;
+        let s = resolve_resumed(&v.meta, &v.dir, &layers)?;
+        let out = args
+            .out
+            .clone()
+            .unwrap_or_else(|| checkpoint::run_dir_of(&v.dir));
         return Ok((s, out, Some(v)));
     }
-    let mut task = tasks::DEFAULT_TASK.to_string();
-    let mut net = tasks::DEFAULT_NET.to_string();
-    for (_, l) in &layers {
-        task = str_value(l, "task").unwrap_or(task);
-        net = str_value(l, "net").unwrap_or(net);
-    }
-    let row = tasks::row(&task, &net)?;
-    let merged = apply(&defaults(row).to_table(), &layers)?;
-    let s = Settings::from_table(merged, "configuration")?;
-    s.validate(episode_steps(&s.task)?, &row.sizes)?;
+    let s = resolve_fresh(&layers)?;
     let out = args
         .out
         .clone()
@@ -186,13 +184,86 @@ pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Veri
     Ok((s, out, None))
 }
 
+/// A fresh run's configuration: the task table row's defaults under `layers` (see
+/// [`layers_from`]), validated. Reads no files.
+pub fn resolve_fresh(layers: &[(String, toml::Table)]) -> Result<Settings, Error> {
+    let mut task = tasks::DEFAULT_TASK.to_string();
+    let mut net = tasks::DEFAULT_NET.to_string();
+    for (_, l) in layers {
+        task = str_value(l, "task").unwrap_or(task);
+        net = str_value(l, "net").unwrap_or(net);
+    }
+    let row = tasks::row(&task, &net)?;
+    let merged = apply(&defaults(row).to_table(), layers)?;
+    let s = Settings::from_table(merged, "configuration")?;
+    s.validate(episode_steps(&s.task)?, &row.sizes)?;
+    Ok(s)
+}
+
+/// A resumed run's configuration: the checkpoint's (`meta`, from `dir`) under `layers`, which
+/// may change `steps` only (raise it), validated against this build's task table. Reads no
+/// files.
+pub fn resolve_resumed(
+    meta: &checkpoint::Meta,
+    dir: &Path,
+    layers: &[(String, toml::Table)],
+) -> Result<Settings, Error> {
+    let base = meta.settings.to_table();
+    let merged = apply(&base, layers)?;
+    let diffs = settings::differences(&base, &merged, "", &["steps"]);
+    if !diffs.is_empty() {
+        return Err(SettingsError::Mismatch {
+            dir: dir.display().to_string(),
+            differences: diffs,
+        }
+        .into());
+    }
+    let s = Settings::from_table(merged, "resumed configuration")?;
+    let row = tasks::row(&s.task, &s.net)?;
+    if meta.sizes != row.sizes {
+        return Err(SettingsError::Mismatch {
+            dir: dir.display().to_string(),
+            differences: vec![format!(
+                "network sizes are {:?} in the checkpoint, {:?} in this build's task table",
+                meta.sizes, row.sizes
+            )],
+        }
+        .into());
+    }
+    s.validate(episode_steps(&s.task)?, &row.sizes)?;
+    if s.steps < meta.env_steps {
+        return Err(SettingsError::Invalid(format!(
+            "steps = {} is below the checkpoint's {} environment steps",
+            s.steps, meta.env_steps
+        ))
+        .into());
+    }
+    Ok(s)
+}
+
 /// `mpo train`.
 pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error> {
     // Lockstep through a controller: a generous deadline, so a loaded machine does not turn
     // into misses (which would make the run differ from an in-process one).
     let link = LinkOptions::from_args(&args.link, Duration::from_millis(100), None)
         .map_err(SettingsError::Invalid)?;
-    let (settings, out, resume) = resolve_train(args)?;
+    let (settings, out, mut resume) = resolve_train(args)?;
+    if let Some(v) = &mut resume
+        && checkpoint::run_dir_of(&v.dir) == out
+        && v.dir.parent() == Some(out.as_path())
+    {
+        // Continuing in the run directory: finish what a crash may have left mid-swap first,
+        // so the checkpoint resumed from is `checkpoint/` from now on.
+        checkpoint::settle(&out)?;
+        v.dir = out.join(checkpoint::SUBDIR);
+    }
+    if let Some(v) = &resume {
+        eprintln!(
+            "resuming from {} at environment step {}",
+            v.dir.display(),
+            v.meta.env_steps
+        );
+    }
     let (task, net) = (settings.task.clone(), settings.net.clone());
     // `--render-every N`: a machine that cannot render says so before training starts.
     let render = match args.render_every {
@@ -227,7 +298,9 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
                 .into());
             }
             Some(_) if !(args.device_timeout.is_finite() && args.device_timeout > 0.0) => {
-                return Err(SettingsError::Invalid("--device-timeout must be positive".into()).into());
+                return Err(
+                    SettingsError::Invalid("--device-timeout must be positive".into()).into(),
+                );
             }
             Some(cmd) => Some(crate::train::DeviceOptions {
                 cmd: cmd.clone(),
@@ -423,7 +496,7 @@ pub fn run(args: &RunArgs, interrupt: &AtomicBool) -> Result<RunSummary, Error> 
     };
     let link =
         LinkOptions::from_args(&args.link, default_deadline, args.realtime).map_err(invalid)?;
-    let v = checkpoint::open(&args.checkpoint)?;
+    let v = open_checkpoint(&args.checkpoint)?;
     let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
     let req = RunRequest {
         task: task.clone(),
@@ -619,7 +692,7 @@ impl RowVisitor for ExportVisitor {
 
 /// `mpo export`: the checkpoint's online policy as Rust source for the firmware.
 pub fn export(args: &ExportArgs) -> Result<ExportSummary, Error> {
-    let v = checkpoint::open(&args.checkpoint)?;
+    let v = open_checkpoint(&args.checkpoint)?;
     let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
     tasks::visit(
         &task,
@@ -633,7 +706,7 @@ pub fn export(args: &ExportArgs) -> Result<ExportSummary, Error> {
 
 /// `mpo eval`.
 pub fn eval(args: &EvalArgs) -> Result<EvalSummary, Error> {
-    let v = checkpoint::open(&args.checkpoint)?;
+    let v = open_checkpoint(&args.checkpoint)?;
     let (task, net) = (v.meta.settings.task.clone(), v.meta.settings.net.clone());
     let seed = args.seed.unwrap_or(v.meta.settings.seed);
     if args.episodes == 0 {

@@ -334,7 +334,7 @@ impl Device {
     fn send(&mut self, frame: &[u8]) -> Result<(), DeviceError> {
         let sent = self.report.requests + self.report.retries;
         match self.damage_every {
-            Some(n) if sent.is_multiple_of(n) && (sent / n) % 2 == 0 => {
+            Some(n) if sent.is_multiple_of(n) && (sent / n).is_multiple_of(2) => {
                 let mut bad = frame.to_vec();
                 let i = (sent as usize * 7) % (bad.len() - 1); // never the delimiter
                 bad[i] = match bad[i] ^ 0x10 {

@@ -9,7 +9,7 @@
 //! by one rounding, identically for fresh and resumed runs.
 
 use mpo_core::config::MpoConfig;
-use mpo_core::replay::{BatchMode, MAX_NSTEP};
+use mpo_core::replay::MAX_NSTEP;
 use serde::{Deserialize, Serialize};
 
 use crate::tasks::Sizes;
@@ -140,22 +140,6 @@ impl MpoSettings {
         target_tau: 0.0,
     };
 
-    /// How [`mpo_core::replay::Replay::fill_batch`] draws batches for this configuration.
-    pub fn batch_mode(&self) -> BatchMode {
-        let gamma = self.gamma as f32;
-        match self.policy_evaluation {
-            PolicyEvaluation::Td => BatchMode::OneStep { n: 1, gamma },
-            PolicyEvaluation::NStep => BatchMode::OneStep {
-                n: self.n_step,
-                gamma,
-            },
-            PolicyEvaluation::Retrace => BatchMode::Sequences {
-                len: self.n_step,
-                gamma,
-            },
-        }
-    }
-
     /// The learner's configuration (one `f64 -> f32` rounding per field).
     // The trailing `..REPORT` keeps this compiling if the core gains a field (it then takes
     // the core's default until it is added here).
@@ -244,9 +228,14 @@ pub fn read_table(path: &std::path::Path) -> Result<toml::Table, SettingsError> 
         path: path.display().to_string(),
         source,
     })?;
+    parse_table(&text, &path.display().to_string())
+}
+
+/// Parses the text of a TOML configuration file into a table (errors name `origin`).
+pub fn parse_table(text: &str, origin: &str) -> Result<toml::Table, SettingsError> {
     text.parse::<toml::Table>()
         .map_err(|e| SettingsError::Parse {
-            origin: path.display().to_string(),
+            origin: origin.to_string(),
             message: e.to_string(),
         })
 }

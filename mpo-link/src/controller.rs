@@ -86,7 +86,7 @@ impl core::fmt::Display for ControllerStats {
 }
 
 /// Assembles parameter blocks into a staging policy and verifies the whole vector.
-struct Assembler<P: Params> {
+pub struct Assembler<P: Params> {
     staging: Box<P>,
     generation: u64,
     received: u64,
@@ -95,9 +95,32 @@ struct Assembler<P: Params> {
 }
 
 impl<P: Params> Assembler<P> {
+    /// An assembler writing into `staging` (its contents are overwritten block by block).
+    pub fn new(staging: Box<P>) -> Self {
+        const { assert!(MAX_BLOCKS <= 64) };
+        Self {
+            staging,
+            generation: 0,
+            received: 0,
+            count: 0,
+            total_checksum: 0,
+        }
+    }
+
+    /// The generation being assembled (after [`Self::add`] returned true: the one completed).
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Exchanges the staging policy, complete after [`Self::add`] returned true, with `active`.
+    pub fn swap_into(&mut self, active: &mut Box<P>) {
+        core::mem::swap(active, &mut self.staging);
+    }
+
     /// Writes one block into `staging` at its flat offset; returns true when generation
-    /// `chunk.generation` is complete and its whole-vector checksum matched.
-    fn add(&mut self, chunk: &ParamChunk, applied: u64) -> Result<bool, Reject> {
+    /// `chunk.generation` is complete and its whole-vector checksum matched. `applied` is the
+    /// generation in use (its blocks and older ones are ignored).
+    pub fn add(&mut self, chunk: &ParamChunk, applied: u64) -> Result<bool, Reject> {
         let total = self.staging.len();
         let payload = chunk.validate(total)?;
         if chunk.generation <= applied {
@@ -180,14 +203,7 @@ pub fn serve<
     let ports = ControllerPorts::open(&opts.run)?;
     let mut policy: Box<Actor<OBS, ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
     policy.init(&mut Rng::seed_from_u64(opts.seed), opts.init_std, 1e-4);
-    let mut asm = Assembler::<Actor<OBS, ACT, TRI, H1, H2>> {
-        staging: bytemuck::zeroed_box(),
-        generation: 0,
-        received: 0,
-        count: 0,
-        total_checksum: 0,
-    };
-    const { assert!(MAX_BLOCKS <= 64) };
+    let mut asm = Assembler::<Actor<OBS, ACT, TRI, H1, H2>>::new(bytemuck::zeroed_box());
     let mut applied = 0u64;
     let mut stats = ControllerStats::default();
     let mut reply: ActMsg = bytemuck::Zeroable::zeroed();
@@ -206,8 +222,8 @@ pub fn serve<
         while let Ok(Some(sample)) = ports.params.receive() {
             match asm.add(&sample, applied) {
                 Ok(true) => {
-                    core::mem::swap(&mut policy, &mut asm.staging);
-                    applied = asm.generation;
+                    asm.swap_into(&mut policy);
+                    applied = asm.generation();
                     stats.swaps += 1;
                 }
                 Ok(false) => {}
@@ -229,40 +245,8 @@ pub fn serve<
             }
             continue;
         }
-        let t_recv = monotonic_ns();
-        reply.seq = latest.seq;
-        reply.t_recv_ns = t_recv;
-        reply.generation = applied;
-        reply.len = ACT as u32;
-        reply.log_prob = 0.0;
-        reply.action = [0.0; crate::messages::MAX_ACT];
-        match latest.validate(OBS) {
-            Err(e) => {
-                stats.rejections.count(e);
-                reply.flags = ACT_REJECTED;
-            }
-            Ok(o) => {
-                let obs: &[f32; OBS] = o.try_into().expect("validated length");
-                let a: &mut [f32; ACT] = (&mut reply.action[..ACT]).try_into().expect("ACT");
-                if latest.flags & OBS_SAMPLE != 0 {
-                    let d = policy.distribution(obs, latest.std_floor);
-                    let z: &[f32; ACT] = latest.noise[..ACT].try_into().expect("ACT");
-                    d.transform(z, a);
-                    reply.log_prob = d.log_prob(a);
-                    reply.flags = ACT_SAMPLED;
-                } else {
-                    policy.mean_action(obs, a);
-                    reply.flags = 0;
-                }
-                if !a.iter().all(|x| x.is_finite()) || !reply.log_prob.is_finite() {
-                    // A policy that produces NaN must not drive the plant.
-                    stats.rejections.count(Reject::NonFinite);
-                    reply.action = [0.0; crate::messages::MAX_ACT];
-                    reply.flags = ACT_REJECTED;
-                }
-            }
-        }
-        reply.rejected = stats.rejections.total().min(u32::MAX as u64) as u32;
+        reply.t_recv_ns = monotonic_ns();
+        respond(&policy, &latest, applied, &mut stats, &mut reply);
         reply.t_send_ns = monotonic_ns();
         if ports.act.send_copy(reply).is_ok() {
             stats.answered += 1;
@@ -274,6 +258,58 @@ pub fn serve<
     drop(ports);
     opts.run.remove_if_last();
     Ok(stats)
+}
+
+/// Answers the request `request` with `policy` (parameter generation `applied`) into `reply`:
+/// the mean action, or with `OBS_SAMPLE` the sample `mu + L z` for the request's noise and its
+/// log-probability. A request that fails validation, or a policy output that is not finite,
+/// gets the zero action and `ACT_REJECTED`, counted in `stats`. Everything but the two
+/// timestamps, which are the caller's. (Pure, so the fuzz target `link_messages` reaches it.)
+pub fn respond<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const H1: usize,
+    const H2: usize,
+>(
+    policy: &Actor<OBS, ACT, TRI, H1, H2>,
+    request: &ObsMsg,
+    applied: u64,
+    stats: &mut ControllerStats,
+    reply: &mut ActMsg,
+) {
+    reply.seq = request.seq;
+    reply.generation = applied;
+    reply.len = ACT as u32;
+    reply.log_prob = 0.0;
+    reply.action = [0.0; crate::messages::MAX_ACT];
+    match request.validate(OBS) {
+        Err(e) => {
+            stats.rejections.count(e);
+            reply.flags = ACT_REJECTED;
+        }
+        Ok(o) => {
+            let obs: &[f32; OBS] = o.try_into().expect("validated length");
+            let a: &mut [f32; ACT] = (&mut reply.action[..ACT]).try_into().expect("ACT");
+            if request.flags & OBS_SAMPLE != 0 {
+                let d = policy.distribution(obs, request.std_floor);
+                let z: &[f32; ACT] = request.noise[..ACT].try_into().expect("ACT");
+                d.transform(z, a);
+                reply.log_prob = d.log_prob(a);
+                reply.flags = ACT_SAMPLED;
+            } else {
+                policy.mean_action(obs, a);
+                reply.flags = 0;
+            }
+            if !a.iter().all(|x| x.is_finite()) || !reply.log_prob.is_finite() {
+                // A policy that produces NaN must not drive the plant.
+                stats.rejections.count(Reject::NonFinite);
+                reply.action = [0.0; crate::messages::MAX_ACT];
+                reply.flags = ACT_REJECTED;
+            }
+        }
+    }
+    reply.rejected = stats.rejections.total().min(u32::MAX as u64) as u32;
 }
 
 /// Calls `$f::<OBS, ACT, TRI, H1, H2>($args)` for the policy profile named `$name`, or

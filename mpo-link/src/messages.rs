@@ -199,6 +199,25 @@ impl ObsMsg {
     }
 }
 
+impl ObsMsg {
+    /// Writes an observation request (the plant's encoder): `obs` into the first `obs.len()`
+    /// entries (the rest zero), and with `noise` the `OBS_SAMPLE` flag and the noise. The
+    /// caller has checked the lengths against the policy and the values for finiteness.
+    pub fn set_observation(&mut self, obs: &[f32], noise: Option<&[f32]>, std_floor: f32) {
+        let n = obs.len();
+        self.len = n as u32;
+        self.obs[..n].copy_from_slice(obs);
+        self.obs[n..].fill(0.0);
+        self.noise = [0.0; MAX_ACT];
+        self.flags = 0;
+        self.std_floor = std_floor;
+        if let Some(z) = noise {
+            self.noise[..z.len()].copy_from_slice(z);
+            self.flags = OBS_SAMPLE;
+        }
+    }
+}
+
 impl ActMsg {
     /// Checks a reply to request `seq` from a policy with `act_len` outputs.
     pub fn validate(&self, seq: u64, act_len: usize) -> Result<&[f32], Reject> {
@@ -241,6 +260,50 @@ impl ParamChunk {
             return Err(Reject::NonFinite);
         }
         Ok(p)
+    }
+}
+
+impl ParamChunk {
+    /// Writes block `index` of generation `generation` of `policy`'s parameters (the plant's
+    /// encoder): the scalars `index * CHUNK ..` in `Params` tensor order, the rest of the
+    /// payload zero, the block's checksum, and `total_checksum` (the whole vector's, see
+    /// [`checksum`]).
+    pub fn set_block<P: mpo_core::params::Params>(
+        &mut self,
+        policy: &P,
+        generation: u64,
+        index: usize,
+        total_checksum: u64,
+    ) {
+        let total = policy.len();
+        let count = total.div_ceil(CHUNK);
+        let len = CHUNK.min(total - index * CHUNK);
+        // Skip to the block's start, then fill it from consecutive tensors.
+        let (mut tensor, mut offset) = (0usize, index * CHUNK);
+        while offset >= policy.tensor(tensor).len() {
+            offset -= policy.tensor(tensor).len();
+            tensor += 1;
+        }
+        let mut filled = 0;
+        while filled < len {
+            let t = policy.tensor(tensor);
+            let take = (t.len() - offset).min(len - filled);
+            self.payload[filled..filled + take].copy_from_slice(&t[offset..offset + take]);
+            filled += take;
+            offset += take;
+            if offset == t.len() {
+                tensor += 1;
+                offset = 0;
+            }
+        }
+        self.payload[len..].fill(0.0);
+        self.generation = generation;
+        self.total_checksum = total_checksum;
+        self.checksum = checksum(CHECKSUM_SEED, &self.payload[..len]);
+        self.total_len = total as u32;
+        self.index = index as u32;
+        self.count = count as u32;
+        self.len = len as u32;
     }
 }
 

@@ -13,8 +13,8 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use mpo_core::params::Params;
 
 use crate::messages::{
-    ACT_SAMPLED, ActMsg, CHECKSUM_SEED, CHUNK, MAX_ACT, MAX_BLOCKS, MAX_OBS, OBS_SAMPLE, ObsMsg,
-    ParamChunk, Reject, Rejections, checksum,
+    ACT_SAMPLED, ActMsg, CHECKSUM_SEED, CHUNK, MAX_ACT, MAX_BLOCKS, MAX_OBS, ObsMsg, ParamChunk,
+    Reject, Rejections, checksum,
 };
 use crate::service::{
     LinkError, PlantPorts, RunId, WaitMode, err, monotonic_ns, remaining, wait_for_event,
@@ -303,17 +303,7 @@ impl Plant {
         {
             return Err(Reject::NonFinite);
         }
-        let r = &mut self.req;
-        r.len = n as u32;
-        r.obs[..n].copy_from_slice(obs);
-        r.obs[n..].fill(0.0);
-        r.noise = [0.0; MAX_ACT];
-        r.flags = 0;
-        r.std_floor = std_floor;
-        if let Some(z) = noise {
-            r.noise[..a].copy_from_slice(z);
-            r.flags = OBS_SAMPLE;
-        }
+        self.req.set_observation(obs, noise, std_floor);
         Ok(())
     }
 
@@ -342,31 +332,9 @@ impl Plant {
             total_checksum = checksum(total_checksum, policy.tensor(k));
         }
         self.generation += 1;
-        let (mut tensor, mut offset) = (0usize, 0usize);
         for index in 0..count {
-            let c = &mut *self.chunk;
-            let len = CHUNK.min(total - index * CHUNK);
-            // Fill the block from consecutive tensors.
-            let mut filled = 0;
-            while filled < len {
-                let t = policy.tensor(tensor);
-                let take = (t.len() - offset).min(len - filled);
-                c.payload[filled..filled + take].copy_from_slice(&t[offset..offset + take]);
-                filled += take;
-                offset += take;
-                if offset == t.len() {
-                    tensor += 1;
-                    offset = 0;
-                }
-            }
-            c.payload[len..].fill(0.0);
-            c.generation = self.generation;
-            c.total_checksum = total_checksum;
-            c.checksum = checksum(CHECKSUM_SEED, &c.payload[..len]);
-            c.total_len = total as u32;
-            c.index = index as u32;
-            c.count = count as u32;
-            c.len = len as u32;
+            self.chunk
+                .set_block(policy, self.generation, index, total_checksum);
             self.send_chunk()?;
         }
         let _ = self.ports().notify.notify();

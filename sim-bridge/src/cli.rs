@@ -61,10 +61,22 @@ impl<E: std::error::Error> From<E> for CliError {
     }
 }
 
-/// Parses the action file: one row per control step, `width` finite numbers per row.
+/// Reads and parses the action file ([`parse_actions`]).
 pub fn read_actions(path: &Path, width: usize, max_rows: usize) -> Result<Vec<Vec<f64>>, CliError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| CliError(format!("cannot read action file {}: {e}", path.display())))?;
+    parse_actions(&text, path, width, max_rows)
+}
+
+/// Parses an action file's text: one row per control step, `width` finite numbers per row, at
+/// most `max_rows` rows; `path` only names the file in errors. (Pure, so the fuzz target
+/// `actions_csv` reaches it without a file.)
+pub fn parse_actions(
+    text: &str,
+    path: &Path,
+    width: usize,
+    max_rows: usize,
+) -> Result<Vec<Vec<f64>>, CliError> {
     let mut rows = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let row = i + 1;
