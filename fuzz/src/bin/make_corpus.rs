@@ -40,19 +40,19 @@ fn small_checkpoint(tmp: &Path) -> [Vec<u8>; 5] {
     let settings = commands::defaults(row);
     let mut t = Tiny::new(&settings, None, 1).unwrap();
     t.collect(8).unwrap();
-    let c = t.replay.counters();
+    let c = t.agent.replay.counters();
     let meta = Meta {
         format: checkpoint::FORMAT.into(),
         version: checkpoint::VERSION,
         settings: settings.clone(),
         sizes: row.sizes,
-        env_steps: t.env_steps,
+        env_steps: t.env_steps(),
         episodes: t.episodes,
-        updates: t.learner.updates,
+        updates: t.agent.learner.updates,
         wall_s: 0.5,
-        learner_rng: checkpoint::hex(&t.learner.rng_state),
-        collector_rng: checkpoint::hex(&t.collector.state()),
-        sampler_rng: checkpoint::hex(&t.sampler.state()),
+        learner_rng: checkpoint::hex(&t.agent.learner.rng_state),
+        collector_rng: checkpoint::hex(&t.agent.collector),
+        sampler_rng: checkpoint::hex(&t.agent.sampler),
         replay: Counters {
             head: c.head,
             len: c.len,
@@ -61,11 +61,14 @@ fn small_checkpoint(tmp: &Path) -> [Vec<u8>; 5] {
         },
         stats: t.stats.clone(),
         metrics: Vec::new(),
-        params_sha256: checkpoint::params_sha256(&t.learner.live.actor, &t.learner.live.critic),
+        params_sha256: checkpoint::params_sha256(
+            &t.agent.learner.live.actor,
+            &t.agent.learner.live.critic,
+        ),
     };
     let _ = std::fs::remove_dir_all(tmp);
     std::fs::create_dir_all(tmp).unwrap();
-    checkpoint::save(tmp, &t.learner, &t.replay, &meta).unwrap();
+    checkpoint::save(tmp, &t.agent.learner, &t.agent.replay, &meta).unwrap();
     checkpoint_files(&tmp.join(checkpoint::SUBDIR))
 }
 
