@@ -448,3 +448,152 @@ fn retrace_inside_the_learner_equals_an_independent_recursion() {
     l.batch[1].behaviour_log_prob[2][7] = f32::NAN;
     assert_eq!(l.update(), Err(UpdateError::NonFinite(NonFinite::Batch)));
 }
+
+/// `-ln N(a; mu, L L^T)` summed with weights, and the two KL parts, written out in f64 with
+/// nalgebra (no code shared with `mstep` or `gaussian` beyond the head's parametrisation).
+fn mstep_loss_f64(
+    old: &Gaussian<ACT>,
+    new: &Gaussian<ACT>,
+    samples: &[([f32; ACT], f32)],
+    c_nll: f64,
+    c_mean: f64,
+    c_cov: f64,
+) -> (f64, f64) {
+    use nalgebra::{SMatrix, SVector};
+    let mat = |l: &[[f32; ACT]; ACT]| SMatrix::<f64, ACT, ACT>::from_fn(|r, c| l[r][c] as f64);
+    let vec = |v: &[f32; ACT]| SVector::<f64, ACT>::from_fn(|r, _| v[r] as f64);
+    let (s_old, s_new) = {
+        let (a, b) = (mat(&old.l), mat(&new.l));
+        (a * a.transpose(), b * b.transpose())
+    };
+    let (mu_old, mu_new) = (vec(&old.mu), vec(&new.mu));
+    let log_n = |a: &SVector<f64, ACT>, mu: &SVector<f64, ACT>, s: &SMatrix<f64, ACT, ACT>| {
+        let d = a - mu;
+        let q = (d.transpose() * s.try_inverse().unwrap() * d)[0];
+        -0.5 * (q + (2.0 * std::f64::consts::PI).ln() * ACT as f64 + s.determinant().ln())
+    };
+    // The decoupled halves: the mean's likelihood with the old covariance, the covariance's
+    // with the old mean.
+    let mut nll = 0.0;
+    for (a, w) in samples {
+        let a = vec(a);
+        nll -= *w as f64 * (log_n(&a, &mu_new, &s_old) + log_n(&a, &mu_old, &s_new));
+    }
+    nll *= c_nll;
+    let d = mu_new - mu_old;
+    let kl_mean = 0.5 * (d.transpose() * s_old.try_inverse().unwrap() * d)[0];
+    let kl_cov = 0.5
+        * ((s_new.try_inverse().unwrap() * s_old).trace() - ACT as f64
+            + (s_new.determinant() / s_old.determinant()).ln());
+    (nll + c_mean * kl_mean + c_cov * kl_cov, nll)
+}
+
+/// `mstep::state_gradient` (the closed forms over sample statistics, the stop-gradients and the
+/// KL terms through the head) against central differences of the per-state M-step loss
+/// written out independently; and its reported likelihood term against the direct sum.
+#[test]
+fn state_gradient_matches_finite_differences_of_the_loss_written_out() {
+    use mpo_core::gaussian::SampleStats;
+    use mpo_core::mstep::state_gradient;
+    let floor = 1e-3;
+    let mut rng = Rng::seed_from_u64(77);
+    let mut worst = 0f64;
+    for case in 0..20 {
+        let mut raw = [0f32; ACT + TRI + ACT + TRI];
+        rng.fill_normal(&mut raw);
+        for x in &mut raw[ACT..ACT + TRI] {
+            *x *= 0.5;
+        }
+        for x in &mut raw[ACT + TRI..] {
+            *x *= 0.3;
+        }
+        let (m0, c0) = (
+            raw[..ACT].try_into().unwrap(),
+            raw[ACT..ACT + TRI].try_into().unwrap(),
+        );
+        let old = Gaussian::<ACT>::from_head::<TRI>(&m0, &c0, floor);
+        // The online head near the old one (as in an M-step).
+        let mut m1: [f32; ACT] = m0;
+        let mut c1: [f32; TRI] = c0;
+        for k in 0..ACT {
+            m1[k] += raw[ACT + TRI + k];
+        }
+        for k in 0..TRI {
+            c1[k] += raw[2 * ACT + TRI + k];
+        }
+        let mut samples = Vec::new();
+        let mut st = SampleStats::ZERO;
+        for _ in 0..12 {
+            let mut a = [0f32; ACT];
+            old.sample(&mut rng, &mut a);
+            let w = 0.02 + 0.1 * rng.uniform();
+            st.add(w, &a, &old.mu);
+            samples.push((a, w));
+        }
+        let (c_nll, c_mean, c_cov) = (0.25f32, 3.0f32, 40.0f32);
+        let (mut dm, mut dc) = ([0f32; ACT], [0f32; TRI]);
+        let terms = state_gradient(
+            &old,
+            &m1,
+            &c1,
+            &st,
+            c_nll,
+            &[c_mean; ACT],
+            &[c_cov; ACT],
+            floor,
+            &mut dm,
+            &mut dc,
+        );
+        let loss = |m: &[f32; ACT], c: &[f32; TRI]| {
+            let new = Gaussian::from_head(m, c, floor);
+            mstep_loss_f64(
+                &old,
+                &new,
+                &samples,
+                c_nll as f64,
+                c_mean as f64,
+                c_cov as f64,
+            )
+        };
+        let (_, nll) = loss(&m1, &c1);
+        let rel_nll = (terms.nll as f64 - nll).abs() / (1e-6 + nll.abs());
+        assert!(
+            rel_nll < 1e-4,
+            "case {case}: reported nll {} vs {nll}",
+            terms.nll
+        );
+        let h = 1e-2f32;
+        let mut check = |analytic: f32, plus: f64, minus: f64, what: String| {
+            let fd = (plus - minus) / (2.0 * h as f64);
+            let err = (analytic as f64 - fd).abs() / (1e-3 + fd.abs().max(analytic.abs() as f64));
+            worst = worst.max(err);
+            assert!(
+                err < 2e-2,
+                "case {case}, {what}: analytic {analytic}, differences {fd}"
+            );
+        };
+        for k in 0..ACT {
+            let (mut p, mut q) = (m1, m1);
+            p[k] += h;
+            q[k] -= h;
+            check(
+                dm[k],
+                loss(&p, &c1).0,
+                loss(&q, &c1).0,
+                format!("d/d mean[{k}]"),
+            );
+        }
+        for k in 0..TRI {
+            let (mut p, mut q) = (c1, c1);
+            p[k] += h;
+            q[k] -= h;
+            check(
+                dc[k],
+                loss(&m1, &p).0,
+                loss(&m1, &q).0,
+                format!("d/d chol[{k}]"),
+            );
+        }
+    }
+    eprintln!("state_gradient vs central differences: worst relative error {worst:.2e}");
+}
