@@ -14,7 +14,6 @@ use mpo_fuzz::checkpoint::{FIX_SUMS, NAMES, decode};
 use mpo_host::checkpoint::{self, Verified};
 use mpo_host::commands::{self, Flags};
 use mpo_host::tasks::{self, Row, RowVisitor};
-use sha2::{Digest, Sha256};
 
 fuzz_target!(|data: &[u8]| {
     let (flags, given) = decode(data);
@@ -27,10 +26,7 @@ fuzz_target!(|data: &[u8]| {
         let mut sums = String::new();
         for n in &NAMES[1..] {
             if let Some(b) = files.get(n) {
-                let h: String = Sha256::digest(b)
-                    .iter()
-                    .map(|x| format!("{x:02x}"))
-                    .collect();
+                let h = checkpoint::sha256_hex(b);
                 sums.push_str(&format!("{h}  {n}\n"));
             }
         }

@@ -300,6 +300,42 @@ impl<
         self.agent.env_steps
     }
 
+    /// The checkpoint metadata of the trainer's present state: counters, random streams,
+    /// replay counters, statistics and parameter hash (what [`checkpoint::save`] writes
+    /// beside the tensors).
+    pub fn meta(
+        &self,
+        settings: &Settings,
+        row: &Row,
+        metrics: &[MetricsRow],
+        wall_s: f64,
+    ) -> Meta {
+        let c = self.agent.replay.counters();
+        let l = &self.agent.learner;
+        Meta {
+            format: checkpoint::FORMAT.into(),
+            version: checkpoint::VERSION,
+            settings: settings.clone(),
+            sizes: row.sizes,
+            env_steps: self.env_steps(),
+            episodes: self.episodes,
+            updates: l.updates,
+            wall_s,
+            learner_rng: checkpoint::hex(&l.rng_state),
+            collector_rng: checkpoint::hex(&self.agent.collector),
+            sampler_rng: checkpoint::hex(&self.agent.sampler),
+            replay: Counters {
+                head: c.head,
+                len: c.len,
+                inserted: c.inserted,
+                current_episode: c.current_episode,
+            },
+            stats: self.stats.clone(),
+            metrics: metrics.to_vec(),
+            params_sha256: checkpoint::params_sha256(&l.live.actor, &l.live.critic),
+        }
+    }
+
     /// True between episodes (where checkpoints may be taken).
     pub fn at_episode_boundary(&self) -> bool {
         !self.in_episode
@@ -773,32 +809,7 @@ fn run<
                 rows: &[MetricsRow],
                 wall_s: f64|
      -> Result<(), TrainError> {
-        let c = t.agent.replay.counters();
-        let meta = Meta {
-            format: checkpoint::FORMAT.into(),
-            version: checkpoint::VERSION,
-            settings: settings.clone(),
-            sizes: row.sizes,
-            env_steps: t.env_steps(),
-            episodes: t.episodes,
-            updates: t.agent.learner.updates,
-            wall_s,
-            learner_rng: checkpoint::hex(&t.agent.learner.rng_state),
-            collector_rng: checkpoint::hex(&t.agent.collector),
-            sampler_rng: checkpoint::hex(&t.agent.sampler),
-            replay: Counters {
-                head: c.head,
-                len: c.len,
-                inserted: c.inserted,
-                current_episode: c.current_episode,
-            },
-            stats: t.stats.clone(),
-            metrics: rows.to_vec(),
-            params_sha256: checkpoint::params_sha256(
-                &t.agent.learner.live.actor,
-                &t.agent.learner.live.critic,
-            ),
-        };
+        let meta = t.meta(&settings, row, rows, wall_s);
         checkpoint::save(&out, &t.agent.learner, &t.agent.replay, &meta)?;
         Ok(())
     };

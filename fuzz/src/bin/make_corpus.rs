@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use mpo_core::actor::Actor;
 use mpo_core::rng::Rng;
 use mpo_fuzz::{actions_csv, checkpoint as ck, config, frames, link};
-use mpo_host::checkpoint::{self, Counters, Meta};
+use mpo_host::checkpoint;
 use mpo_host::commands;
 use mpo_host::train::Trainer;
 use mpo_link::controller::{ControllerStats, respond};
@@ -40,32 +40,7 @@ fn small_checkpoint(tmp: &Path) -> [Vec<u8>; 5] {
     let settings = commands::defaults(row);
     let mut t = Tiny::new(&settings, None, 1).unwrap();
     t.collect(8).unwrap();
-    let c = t.agent.replay.counters();
-    let meta = Meta {
-        format: checkpoint::FORMAT.into(),
-        version: checkpoint::VERSION,
-        settings: settings.clone(),
-        sizes: row.sizes,
-        env_steps: t.env_steps(),
-        episodes: t.episodes,
-        updates: t.agent.learner.updates,
-        wall_s: 0.5,
-        learner_rng: checkpoint::hex(&t.agent.learner.rng_state),
-        collector_rng: checkpoint::hex(&t.agent.collector),
-        sampler_rng: checkpoint::hex(&t.agent.sampler),
-        replay: Counters {
-            head: c.head,
-            len: c.len,
-            inserted: c.inserted,
-            current_episode: c.current_episode,
-        },
-        stats: t.stats.clone(),
-        metrics: Vec::new(),
-        params_sha256: checkpoint::params_sha256(
-            &t.agent.learner.live.actor,
-            &t.agent.learner.live.critic,
-        ),
-    };
+    let meta = t.meta(&settings, row, &[], 0.5);
     let _ = std::fs::remove_dir_all(tmp);
     std::fs::create_dir_all(tmp).unwrap();
     checkpoint::save(tmp, &t.agent.learner, &t.agent.replay, &meta).unwrap();
