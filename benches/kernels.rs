@@ -157,8 +157,8 @@ fn critic_rows<const OBS: usize, const ACT: usize, const H1: usize, const H2: us
     rng.fill_normal(dq.as_flattened_mut());
     let macs = ((OBS + ACT) * H1 + H1 * H2 + H2) as f64;
     let secs = time(20, || {
-        critic.forward(&obs, &act, &mut tape, &mut q);
-        critic.backward(&obs, &act, &mut tape, &dq, &mut t, &mut grad);
+        critic.forward(&obs, &act, &mut tape, &mut q, false);
+        critic.backward(&obs, &act, &mut tape, &dq, &mut t, &mut grad, false);
         black_box(&grad.l2.w[0][0]);
     });
     let flops = B as f64 * 2.0 * (2.0 * macs + (H1 * H2 + H2) as f64);
@@ -189,7 +189,7 @@ fn critic_eval_rows<const OBS: usize, const ACT: usize, const H1: usize, const H
     critic.state_part(&*obs, &mut *pre1);
     let mut q = [[0f32; 1]; R];
     let secs = time(200, || {
-        critic.forward_from_state_part(&pre1, &act, &mut tape, &mut q);
+        critic.forward_from_state_part(&pre1, &act, &mut tape, &mut q, false);
         black_box(&q);
     });
     rows.push(Row {

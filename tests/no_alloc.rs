@@ -117,7 +117,7 @@ fn acting_and_training_steps_do_not_allocate() {
         );
 
         let mut q = [[0f32; 1]; B];
-        s.critic.forward(&s.obs, &s.act, &mut s.ctape, &mut q);
+        s.critic.forward(&s.obs, &s.act, &mut s.ctape, &mut q, true);
         let mut dq = [[0f32; 1]; B];
         for i in 0..B {
             dq[i][0] = q[i][0] / B as f32;
@@ -129,6 +129,7 @@ fn acting_and_training_steps_do_not_allocate() {
             &dq,
             &mut s.ct,
             &mut s.critic_grad,
+            true,
         );
         adam_step(
             &cfg,

@@ -43,6 +43,7 @@ fn threaded_updates_allocate_nothing_on_any_thread() {
             sequence_len: 3,
             action_penalization: true,
             target_tau: 0.005,
+            critic_layer_norm: true,
             ..MpoConfig::REPORT
         },
         MpoConfig {

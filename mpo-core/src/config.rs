@@ -70,6 +70,9 @@ pub struct MpoConfig {
     /// Polyak averaging of the targets, `target = (1 - tau) target + tau online`, after every
     /// update; 0 = copy every `target_period` updates instead.
     pub target_tau: f32,
+    /// Acme's `LayerNormMLP` critic torso: the first layer's pre-activations go through a
+    /// layer norm and `tanh` instead of a ReLU (`crate::layer_norm`).
+    pub critic_layer_norm: bool,
 }
 
 impl MpoConfig {
@@ -99,6 +102,7 @@ impl MpoConfig {
         eps_penalty: 1e-3,
         shared_samples: false,
         target_tau: 0.0,
+        critic_layer_norm: false,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -181,7 +185,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 25;
+pub const CONFIG_WORDS: usize = 26;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -215,6 +219,7 @@ impl MpoConfig {
             self.shared_samples as u32,
             f(self.target_tau),
             (self.estep_tol.to_bits() >> 32) as u32,
+            self.critic_layer_norm as u32,
         ]
     }
 
@@ -254,6 +259,7 @@ impl MpoConfig {
             eps_penalty: f(w[21]),
             shared_samples: flag(w[22], "shared_samples")?,
             target_tau: f(w[23]),
+            critic_layer_norm: flag(w[25], "critic_layer_norm")?,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -300,6 +306,7 @@ mod tests {
             shared_samples: false,
             target_tau: 0.005,
             estep_tol: 1e-3,
+            critic_layer_norm: true,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();

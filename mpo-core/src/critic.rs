@@ -1,4 +1,6 @@
-//! The action-value network `Q(s, a)`: a two-hidden-layer ReLU network on `(s, a)`.
+//! The action-value network `Q(s, a)`: a two-hidden-layer ReLU network on `(s, a)`, or, with
+//! `layer_norm` (`MpoConfig::critic_layer_norm`), Acme's `LayerNormMLP` torso: the first layer's
+//! pre-activations go through a [`LayerNorm`] and `tanh` instead of a ReLU.
 //!
 //! The first layer keeps separate weight blocks for the observation and the action, which is
 //! the same function as one layer on the concatenation (bias, then observation inputs, then
@@ -8,6 +10,7 @@
 use bytemuck::Zeroable;
 
 use crate::actor::{MAX_PARTS, sum_squares};
+use crate::layer_norm::{LayerNorm, param_grad_chunks};
 use crate::linear::{
     Linear, Start, accumulate, bias_grad_chunks, kernel, relu_backward, transpose,
     weight_grad_chunks,
@@ -46,6 +49,9 @@ pub struct Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2:
     pub l1s: Linear<OBS, H1>,
     /// First layer, action block.
     pub l1a: Weights<ACT, H1>,
+    /// The first layer's layer norm (used only with `layer_norm`; kept at its initial
+    /// identity otherwise, since its gradient is then zero).
+    pub ln1: LayerNorm<H1>,
     /// Second hidden layer.
     pub l2: Linear<H1, H2>,
     /// Scalar output.
@@ -55,6 +61,7 @@ pub struct Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2:
 crate::impl_params_for_fields!(Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize> {
     l1s: Linear<OBS, H1>,
     l1a: Weights<ACT, H1>,
+    ln1: LayerNorm<H1>,
     l2: Linear<H1, H2>,
     out: Linear<H2, 1>,
 });
@@ -75,6 +82,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         for x in self.l1a.w.as_flattened_mut() {
             *x = rng.uniform_range(-bound, bound);
         }
+        self.ln1.init();
         self.l2.init_uniform(rng);
         self.out.init_uniform(rng);
     }
@@ -92,9 +100,28 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         act: &[[f32; ACT]; B],
         tape: &mut CriticTape<B, H1, H2>,
         q: &mut [[f32; 1]; B],
+        layer_norm: bool,
     ) {
-        kernel::<ACT, H1, true>(act, &self.l1a.w, Start::Rows(pre1_s), &mut tape.h1);
+        self.first_layer(act, Start::Rows(pre1_s), tape, layer_norm);
         self.finish_forward(tape, q);
+    }
+
+    /// Adds the action block to the observation part `start` and applies the first layer's
+    /// activation (ReLU, or layer norm and `tanh`), into `tape.h1`.
+    fn first_layer<const B: usize>(
+        &self,
+        act: &[[f32; ACT]; B],
+        start: Start<'_, H1>,
+        tape: &mut CriticTape<B, H1, H2>,
+        layer_norm: bool,
+    ) {
+        if layer_norm {
+            kernel::<ACT, H1, false>(act, &self.l1a.w, start, &mut tape.h1);
+            self.ln1
+                .forward_tanh(&mut tape.h1, &mut tape.xhat, &mut tape.rstd);
+        } else {
+            kernel::<ACT, H1, true>(act, &self.l1a.w, start, &mut tape.h1);
+        }
     }
 
     /// The rest of the forward pass once `tape.h1` holds the first hidden layer.
@@ -114,9 +141,10 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         act: &[[f32; ACT]; B],
         tape: &mut CriticTape<B, H1, H2>,
         q: &mut [[f32; 1]; B],
+        layer_norm: bool,
     ) {
         self.state_part(obs, &mut tape.h1);
-        kernel::<ACT, H1, true>(act, &self.l1a.w, Start::Y, &mut tape.h1);
+        self.first_layer(act, Start::Y, tape, layer_norm);
         self.finish_forward(tape, q);
     }
 
@@ -133,6 +161,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         tape: &mut CriticTape<B, H1, H2>,
         dq: &[[f32; 1]; B],
         t: &CriticTransposed<H1, H2>,
+        layer_norm: bool,
     ) {
         for row in tape.d_h2.iter_mut() {
             row.fill(0.0);
@@ -143,12 +172,25 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
             row.fill(0.0);
         }
         accumulate(&tape.d_h2, &t.l2, &mut tape.d_h1);
-        relu_backward(&tape.h1, &mut tape.d_h1);
+        if layer_norm {
+            let tape = &mut *tape;
+            self.ln1.backward(
+                &tape.h1,
+                &tape.xhat,
+                &tape.rstd,
+                &mut tape.d_h1,
+                &mut tape.d_y,
+            );
+        } else {
+            relu_backward(&tape.h1, &mut tape.d_h1);
+        }
     }
 
     /// Gradients of `sum_n dq[n] Q(s_n, a_n)` with respect to every parameter, written into
     /// `grad`, for one contiguous batch; `tape` must hold the activations of the forward pass
     /// on the same batch; `t` is scratch.
+    // Every argument is a caller-owned buffer: nothing is allocated here.
+    #[allow(clippy::too_many_arguments)]
     pub fn backward<const B: usize>(
         &self,
         obs: &[[f32; OBS]; B],
@@ -157,9 +199,10 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         dq: &[[f32; 1]; B],
         t: &mut CriticTransposed<H1, H2>,
         grad: &mut Self,
+        layer_norm: bool,
     ) {
         self.transpose_into(t);
-        self.backprop(tape, dq, t);
+        self.backprop(tape, dq, t, layer_norm);
         let inputs = CriticGradInputs {
             obs: &[&obs[..]],
             act: &[&act[..]],
@@ -168,6 +211,9 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
             d_h1: &[&tape.d_h1[..]],
             d_h2: &[&tape.d_h2[..]],
             dq: &[&dq[..]],
+            xhat: &[&tape.xhat[..]],
+            d_y: &[&tape.d_y[..]],
+            layer_norm,
         };
         for part in grad.grad_parts(usize::MAX).iter_mut() {
             part.compute(&inputs);
@@ -181,7 +227,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         rows: usize,
     ) -> heapless::Vec<CriticGradPart<'_, OBS, ACT, H1, H2>, MAX_PARTS> {
         let mut parts = heapless::Vec::new();
-        let rows = rows.max(H1.div_ceil(MAX_PARTS - 3)).max(1);
+        let rows = rows.max(H1.div_ceil(MAX_PARTS - 4)).max(1);
         let mut push = |p| {
             if parts.push(p).is_err() {
                 unreachable!("block count is bounded above");
@@ -191,6 +237,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
             s: &mut self.l1s,
             a: &mut self.l1a,
         });
+        push(CriticGradPart::Norm(&mut self.ln1));
         let mut i0 = 0;
         for block in self.l2.w.chunks_mut(rows) {
             let n = block.len();
@@ -203,12 +250,18 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
     }
 
     /// `Q(s, a)` for one pair.
-    pub fn q_one(&self, obs: &[f32; OBS], act: &[f32; ACT]) -> f32 {
+    pub fn q_one(&self, obs: &[f32; OBS], act: &[f32; ACT], layer_norm: bool) -> f32 {
         let mut h1 = [[0f32; H1]; 1];
         let mut h2 = [[0f32; H2]; 1];
         let mut q = [[0f32; 1]; 1];
         self.l1s.forward(core::slice::from_ref(obs), &mut h1);
-        kernel::<ACT, H1, true>(core::slice::from_ref(act), &self.l1a.w, Start::Y, &mut h1);
+        if layer_norm {
+            kernel::<ACT, H1, false>(core::slice::from_ref(act), &self.l1a.w, Start::Y, &mut h1);
+            let (mut xhat, mut rstd) = ([[0f32; H1]; 1], [0f32; 1]);
+            self.ln1.forward_tanh(&mut h1, &mut xhat, &mut rstd);
+        } else {
+            kernel::<ACT, H1, true>(core::slice::from_ref(act), &self.l1a.w, Start::Y, &mut h1);
+        }
         self.l2.forward_relu(&h1, &mut h2);
         self.out.forward(&h2, &mut q);
         q[0][0]
@@ -229,6 +282,8 @@ pub enum CriticGradPart<'a, const OBS: usize, const ACT: usize, const H1: usize,
         /// Action block.
         a: &'a mut Weights<ACT, H1>,
     },
+    /// The first layer's layer norm (zero without `layer_norm`).
+    Norm(&'a mut LayerNorm<H1>),
     /// Second-layer weight rows `i0 ..`.
     Second {
         /// The rows.
@@ -265,6 +320,12 @@ pub struct CriticGradInputs<
     pub d_h2: &'a [&'a [[f32; H2]]],
     /// Gradients at the output.
     pub dq: &'a [&'a [[f32; 1]]],
+    /// Normalised first-layer pre-activations (read only with `layer_norm`).
+    pub xhat: &'a [&'a [[f32; H1]]],
+    /// Gradients at the layer norm's outputs (read only with `layer_norm`).
+    pub d_y: &'a [&'a [[f32; H1]]],
+    /// Whether the first layer is layer-normalised.
+    pub layer_norm: bool,
 }
 
 impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
@@ -281,6 +342,15 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
                 sum_squares(s.w.as_flattened())
                     + sum_squares(&s.b)
                     + sum_squares(a.w.as_flattened())
+            }
+            Self::Norm(ln) => {
+                if x.layer_norm {
+                    param_grad_chunks(x.xhat, x.d_y, ln);
+                } else {
+                    ln.g.fill(0.0);
+                    ln.b.fill(0.0);
+                }
+                sum_squares(&ln.g) + sum_squares(&ln.b)
             }
             Self::Second { w, i0 } => {
                 weight_grad_chunks(x.h1, x.d_h2, *i0, w);
@@ -313,8 +383,14 @@ pub struct CriticTransposed<const H1: usize, const H2: usize> {
 #[derive(Clone, Zeroable)]
 #[repr(C)]
 pub struct CriticTape<const B: usize, const H1: usize, const H2: usize> {
-    /// First hidden activations (after ReLU).
+    /// First hidden activations (after ReLU, or layer norm and `tanh`).
     pub h1: [[f32; H1]; B],
+    /// The first layer's normalised pre-activations (layer norm only).
+    pub xhat: [[f32; H1]; B],
+    /// `1 / sqrt(var + eps)` of each row's first-layer pre-activations (layer norm only).
+    pub rstd: [f32; B],
+    /// Gradient at the layer norm's outputs (layer norm only).
+    pub d_y: [[f32; H1]; B],
     /// Second hidden activations (after ReLU).
     pub h2: [[f32; H2]; B],
     /// Gradient at the second hidden layer.

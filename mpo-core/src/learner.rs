@@ -545,19 +545,20 @@ impl<
             &self.target_critic,
         );
         let (critic, ct) = (&self.live.critic, &self.grads.ct);
+        let ln = cfg.critic_layer_norm;
         par.for_each(&mut self.chunks, &|c, ch| {
             let b = &batch[c];
             if !cfg.shared_samples {
                 estep_samples(cfg, ta, tc, &b.obs[0], seed, c, ch);
             }
             targets(cfg, ta, tc, b, seed, c, ch);
-            critic.forward(&b.obs[0], &b.action[0], &mut ch.ctape, &mut ch.q);
+            critic.forward(&b.obs[0], &b.action[0], &mut ch.ctape, &mut ch.q, ln);
             let inv_b = 1.0 / (BC * C) as f32;
             for n in 0..BC {
                 ch.err[n] = ch.q[n][0] - ch.target[n];
                 ch.dq[n][0] = ch.err[n] * inv_b;
             }
-            critic.backprop(&mut ch.ctape, &ch.dq, ct);
+            critic.backprop(&mut ch.ctape, &ch.dq, ct, ln);
             if cfg.action_penalization {
                 for n in 0..BC {
                     for j in 0..M {
@@ -613,6 +614,8 @@ impl<
         let d_h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_h1[..]);
         let d_h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_h2[..]);
         let dq: [&[[f32; 1]]; C] = core::array::from_fn(|c| &chunks[c].dq[..]);
+        let xhat: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.xhat[..]);
+        let d_y: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_y[..]);
         let inputs = CriticGradInputs {
             obs: &obs,
             act: &act,
@@ -621,6 +624,9 @@ impl<
             d_h1: &d_h1,
             d_h2: &d_h2,
             dq: &dq,
+            xhat: &xhat,
+            d_y: &d_y,
+            layer_norm: self.cfg.critic_layer_norm,
         };
         let mut parts: heapless::Vec<_, { crate::actor::MAX_PARTS }> = self
             .grads
@@ -874,7 +880,13 @@ fn estep_samples<
         }
     }
     for j in 0..M {
-        tc.forward_from_state_part(&ch.pre1, &ch.samples[j], &mut ch.ctape, &mut ch.q);
+        tc.forward_from_state_part(
+            &ch.pre1,
+            &ch.samples[j],
+            &mut ch.ctape,
+            &mut ch.q,
+            cfg.critic_layer_norm,
+        );
         for n in 0..BC {
             ch.q_samples[n][j] = ch.q[n][0];
         }
@@ -912,7 +924,13 @@ fn targets<
         if k > 0 {
             // s_k is the previous position's next state: its target policy and state part
             // are still in `next_pi` and `pre1`.
-            tc.forward_from_state_part(&ch.pre1, &b.action[k], &mut ch.ctape, &mut ch.q);
+            tc.forward_from_state_part(
+                &ch.pre1,
+                &b.action[k],
+                &mut ch.ctape,
+                &mut ch.q,
+                cfg.critic_layer_norm,
+            );
             for n in 0..BC {
                 ch.ret_q[k][n] = ch.q[n][0];
                 ch.ret_log_ratio[k][n] =
@@ -932,7 +950,13 @@ fn targets<
         }
         let mut v = [0f32; BC];
         for j in 0..N {
-            tc.forward_from_state_part(&ch.pre1, &ch.next_samples[j], &mut ch.ctape, &mut ch.q);
+            tc.forward_from_state_part(
+                &ch.pre1,
+                &ch.next_samples[j],
+                &mut ch.ctape,
+                &mut ch.q,
+                cfg.critic_layer_norm,
+            );
             for n in 0..BC {
                 v[n] += ch.q[n][0];
             }

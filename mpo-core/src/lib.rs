@@ -2,7 +2,8 @@
 //! robots: `#![no_std]`, no allocator, fixed sizes, bit-deterministic.
 //!
 //! The paper's concepts are the modules: [`gaussian`] (the policy's full-covariance
-//! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers),
+//! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers and, optionally for the
+//! critic, a [`layer_norm`]),
 //! [`adam`], [`replay`] and [`rng`]; the algorithm's steps are [`evaluation`] (policy
 //! evaluation targets), [`estep`] and [`mstep`], composed by [`learner`], which spreads its
 //! work over threads through [`parallel`] with the same bits for any thread count. Every routine writes into buffers owned by the caller,
@@ -37,6 +38,8 @@ pub mod estep;
 pub mod evaluation;
 pub mod export;
 pub mod gaussian;
+#[cfg(feature = "train")]
+pub mod layer_norm;
 #[cfg(feature = "train")]
 pub mod learner;
 pub mod linear;

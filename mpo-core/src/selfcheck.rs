@@ -4,7 +4,7 @@
 //! both networks, the Gaussian's sampling, log-density and KL gradients, gradient clipping,
 //! Adam) and returns an FNV-1a hash of the final parameters; [`SelfCheck::learner`] does the
 //! same for whole learner updates (E-step with its temperature solve, M-step, TD and Retrace
-//! targets, action penalization, shared samples, Polyak targets). The same seed must give the
+//! targets, action penalization, shared samples, Polyak targets, the layer-normalised critic). The same seed must give the
 //! same hash in every build: std and `no_std`, debug and release, any target CPU. The
 //! freestanding test binary prints it, and the test suite compares.
 
@@ -117,7 +117,7 @@ impl SelfCheck {
 
         let mut q = [[0f32; 1]; B];
         self.critic
-            .forward(&obs, &actions, &mut self.critic_tape, &mut q);
+            .forward(&obs, &actions, &mut self.critic_tape, &mut q, false);
         let mut dq = [[0f32; 1]; B];
         for n in 0..B {
             dq[n][0] = (q[n][0] - reward[n]) / B as f32;
@@ -129,6 +129,7 @@ impl SelfCheck {
             &dq,
             &mut self.critic_t,
             &mut self.critic_grad,
+            false,
         );
         clip_global_norm(&mut self.critic_grad, 1.0);
         adam_step(
@@ -167,6 +168,7 @@ impl SelfCheck {
             },
             MpoConfig {
                 shared_samples: true,
+                critic_layer_norm: true,
                 ..base
             },
         ];

@@ -416,8 +416,8 @@ fn retrace_inside_the_learner_equals_an_independent_recursion() {
             ch.next_obs[k][i] = next;
             ch.bootstrap[k][i] = boot;
             ch.behaviour_log_prob[k][i] = blp;
-            qv.push(l.target_critic.q_one(&s, &a) as f64);
-            vv.push(l.target_critic.q_one(&next, &[0.0; ACT]) as f64);
+            qv.push(l.target_critic.q_one(&s, &a, false) as f64);
+            vv.push(l.target_critic.q_one(&next, &[0.0; ACT], false) as f64);
             rv.push(r as f64);
             bv.push(boot as f64);
             lr.push((pi - blp) as f64);
@@ -425,7 +425,7 @@ fn retrace_inside_the_learner_equals_an_independent_recursion() {
             s = next;
         }
         ys.push(retrace_reference(&qv, &vv, &rv, &bv, &lr));
-        qs.push(l.live.critic.q_one(&ch.obs[0][i], &ch.action[0][i]) as f64);
+        qs.push(l.live.critic.q_one(&ch.obs[0][i], &ch.action[0][i], false) as f64);
     }
     let below = traces.iter().filter(|&&c| c < 0.9).count();
     assert!(below > B / 4, "traces are non-trivial ({below} below 0.9)");

@@ -168,12 +168,25 @@ fn actor_gradients_for_every_parameter() {
     );
 }
 
-#[test]
-fn critic_gradients_for_every_parameter() {
+/// A critic with random weights; with `layer_norm`, a gain and bias away from the identity so
+/// that their gradients and their effect on the others are exercised.
+fn random_critic(seed: u64, layer_norm: bool) -> Critic<OBS, ACT, H1, H2> {
+    let mut rng = Rng::seed_from_u64(seed);
+    let mut net = Critic::<OBS, ACT, H1, H2>::zeroed();
+    net.init(&mut rng);
+    if layer_norm {
+        for o in 0..H1 {
+            net.ln1.g[o] = 1.0 + 0.3 * rng.normal();
+            net.ln1.b[o] = 0.2 * rng.normal();
+        }
+    }
+    net
+}
+
+fn check_critic_gradients(layer_norm: bool) {
     type Net = Critic<OBS, ACT, H1, H2>;
     let mut rng = Rng::seed_from_u64(3);
-    let mut net = Net::zeroed();
-    net.init(&mut rng);
+    let net = random_critic(5, layer_norm);
     let mut obs = [[0f32; OBS]; B];
     let mut act = [[0f32; ACT]; B];
     let mut cq = [[0f32; 1]; B];
@@ -183,28 +196,123 @@ fn critic_gradients_for_every_parameter() {
     let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
     let f = |net: &Net, tape: &mut CriticTape<B, H1, H2>| -> (f64, u64) {
         let mut q = [[0f32; 1]; B];
-        net.forward(&obs, &act, tape, &mut q);
+        net.forward(&obs, &act, tape, &mut q, layer_norm);
         let v = (0..B).map(|n| q[n][0] as f64 * cq[n][0] as f64).sum();
-        (
-            v,
-            relu_mask(tape.h1.as_flattened()) ^ relu_mask(tape.h2.as_flattened()).rotate_left(1),
-        )
+        // tanh has no kink: only ReLU layers count in the mask.
+        let m1 = if layer_norm {
+            0
+        } else {
+            relu_mask(tape.h1.as_flattened())
+        };
+        (v, m1 ^ relu_mask(tape.h2.as_flattened()).rotate_left(1))
     };
     f(&net, &mut tape);
     let mut grad = Net::zeroed();
     let mut t: Box<CriticTransposed<H1, H2>> = bytemuck::zeroed_box();
-    net.backward(&obs, &act, &mut tape, &cq, &mut t, &mut grad);
+    net.backward(&obs, &act, &mut tape, &cq, &mut t, &mut grad, layer_norm);
     let mut tape2: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
     let worst = check_all(&mut net.clone(), &grad, &mut |p| f(p, &mut tape2), 1e-2);
     eprintln!(
-        "critic: {} parameters, worst relative error {worst:.2e}",
+        "critic (layer norm {layer_norm}): {} parameters, worst relative error {worst:.2e}",
         net.len()
     );
+    let ln_grad = grad
+        .ln1
+        .g
+        .iter()
+        .chain(&grad.ln1.b)
+        .map(|g| g.abs())
+        .sum::<f32>();
+    if layer_norm {
+        assert!(
+            ln_grad > 1e-3,
+            "the layer norm's gain and bias get gradients"
+        );
+    } else {
+        assert_eq!(ln_grad, 0.0, "an unused layer norm gets no gradient");
+    }
     // The split first layer is one layer on the concatenation: q_one agrees with the batch.
     let mut q = [[0f32; 1]; B];
-    net.forward(&obs, &act, &mut tape, &mut q);
+    net.forward(&obs, &act, &mut tape, &mut q, layer_norm);
     for n in 0..B {
-        assert_eq!(net.q_one(&obs[n], &act[n]).to_bits(), q[n][0].to_bits());
+        assert_eq!(
+            net.q_one(&obs[n], &act[n], layer_norm).to_bits(),
+            q[n][0].to_bits()
+        );
+    }
+}
+
+#[test]
+fn critic_gradients_for_every_parameter() {
+    check_critic_gradients(false);
+}
+
+#[test]
+fn layer_normalised_critic_gradients_for_every_parameter() {
+    check_critic_gradients(true);
+}
+
+/// `Q(s, a)` of the layer-normalised critic written out in f64 from the definition (one layer
+/// on the concatenation `[s, a]`, LayerNorm with eps 1e-5, tanh, ReLU, linear), sharing no code
+/// with the network.
+fn naive_layer_norm_q(net: &Critic<OBS, ACT, H1, H2>, s: &[f32; OBS], a: &[f32; ACT]) -> f64 {
+    let x: Vec<f64> = s.iter().chain(a.iter()).map(|&v| v as f64).collect();
+    let pre: Vec<f64> = (0..H1)
+        .map(|o| {
+            let w = |i: usize| {
+                if i < OBS {
+                    net.l1s.w[i][o]
+                } else {
+                    net.l1a.w[i - OBS][o]
+                }
+            };
+            net.l1s.b[o] as f64 + (0..OBS + ACT).map(|i| x[i] * w(i) as f64).sum::<f64>()
+        })
+        .collect();
+    let mean = pre.iter().sum::<f64>() / H1 as f64;
+    let var = pre.iter().map(|p| (p - mean).powi(2)).sum::<f64>() / H1 as f64;
+    let h1: Vec<f64> = (0..H1)
+        .map(|o| {
+            let xh = (pre[o] - mean) / (var + 1e-5).sqrt();
+            (net.ln1.g[o] as f64 * xh + net.ln1.b[o] as f64).tanh()
+        })
+        .collect();
+    let h2: Vec<f64> = (0..H2)
+        .map(|o| {
+            let v =
+                net.l2.b[o] as f64 + (0..H1).map(|i| h1[i] * net.l2.w[i][o] as f64).sum::<f64>();
+            v.max(0.0)
+        })
+        .collect();
+    net.out.b[0] as f64 + (0..H2).map(|i| h2[i] * net.out.w[i][0] as f64).sum::<f64>()
+}
+
+#[test]
+fn layer_normalised_critic_matches_the_definition() {
+    let net = random_critic(7, true);
+    let mut rng = Rng::seed_from_u64(8);
+    let mut obs = [[0f32; OBS]; B];
+    let mut act = [[0f32; ACT]; B];
+    rng.fill_normal(obs.as_flattened_mut());
+    rng.fill_normal(act.as_flattened_mut());
+    // Large observations: the layer norm makes the first layer blind to their scale.
+    for v in obs.as_flattened_mut() {
+        *v *= 30.0;
+    }
+    let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let mut q = [[0f32; 1]; B];
+    net.forward(&obs, &act, &mut tape, &mut q, true);
+    for n in 0..B {
+        let want = naive_layer_norm_q(&net, &obs[n], &act[n]);
+        let err = (q[n][0] as f64 - want).abs() / (1e-3 + want.abs());
+        assert!(
+            err < 1e-4,
+            "row {n}: {} vs {want} (rel. {err:.1e})",
+            q[n][0]
+        );
+        for v in &tape.h1[n] {
+            assert!(v.abs() <= 1.0, "tanh bounds the first layer");
+        }
     }
 }
 

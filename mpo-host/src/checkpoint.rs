@@ -40,7 +40,7 @@ use crate::tasks::Sizes;
 /// Format identifier in `meta.json`.
 pub const FORMAT: &str = "mpo-checkpoint";
 /// Format version; bumped on any incompatible change.
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 /// The checkpoint's subdirectory in a run directory.
 pub const SUBDIR: &str = "checkpoint";
 /// Where a checkpoint can be found in a run directory after a crash, in order of preference
@@ -205,6 +205,8 @@ pub fn critic_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
         ("l1s.w", vec![s.obs, h1]),
         ("l1s.b", vec![h1]),
         ("l1a.w", vec![s.act, h1]),
+        ("ln1.g", vec![h1]),
+        ("ln1.b", vec![h1]),
         ("l2.w", vec![h1, h2]),
         ("l2.b", vec![h2]),
         ("out.w", vec![h2, 1]),

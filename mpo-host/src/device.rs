@@ -22,6 +22,10 @@ use mpo_frames::{
 };
 use serde::{Deserialize, Serialize};
 
+// The frame layout's count of configuration words is the core's (the frames crate does not
+// depend on the core).
+const _: () = assert!(mpo_frames::CONFIG_FIELDS == mpo_core::config::CONFIG_WORDS);
+
 /// Largest payload the host accepts (the parameters of the largest learner a device holds).
 const MAX_PAYLOAD: usize = 60_000;
 /// The host's receive buffer (one encoded frame).

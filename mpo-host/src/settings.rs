@@ -108,6 +108,8 @@ pub struct MpoSettings {
     pub eps_penalty: f64,
     pub shared_samples: bool,
     pub target_tau: f64,
+    /// Acme's LayerNormMLP critic torso (layer norm and tanh after the first layer).
+    pub critic_layer_norm: bool,
 }
 
 impl MpoSettings {
@@ -138,6 +140,7 @@ impl MpoSettings {
         eps_penalty: 1e-3,
         shared_samples: false,
         target_tau: 0.0,
+        critic_layer_norm: false,
     };
 
     /// The learner's configuration (one `f64 -> f32` rounding per field).
@@ -173,6 +176,7 @@ impl MpoSettings {
             eps_penalty: self.eps_penalty as f32,
             shared_samples: self.shared_samples,
             target_tau: self.target_tau as f32,
+            critic_layer_norm: self.critic_layer_norm,
             ..MpoConfig::REPORT
         }
     }

@@ -109,7 +109,8 @@ fn ctrl_c_checkpoints_at_an_episode_boundary_and_resume_matches() {
 }
 
 /// The learner's thread count changes nothing: one, two and three threads give the same
-/// parameters and metrics, for TD and for Retrace with action penalization; and a run
+/// parameters and metrics, for TD and for Retrace with action penalization, Polyak targets
+/// and the layer-normalised critic; and a run
 /// resumed on a different number of threads still matches.
 #[test]
 fn thread_count_does_not_change_a_bit() {
@@ -125,6 +126,8 @@ fn thread_count_does_not_change_a_bit() {
                 "mpo.n_step=3",
                 "--set",
                 "mpo.target_tau=0.01",
+                "--set",
+                "mpo.critic_layer_norm=true",
             ][..],
         ),
     ] {

@@ -208,11 +208,12 @@ impl Counters {
 pub const START_LEN: usize = 8 + 8 + 8 + 4 + 4 + CONFIG_LEN;
 
 /// The learner's configuration on the wire: [`CONFIG_FIELDS`] 32-bit little-endian words in
-/// [`encode_config`]'s order (floats as their bits, flags as 0/1, the E-step tolerance as its
-/// nearest f32).
+/// the order of `mpo_core::config::MpoConfig::to_words` (floats as their bits, flags as 0/1,
+/// the f64 E-step tolerance as two words). This crate does not depend on the core; the host and
+/// the trainer assert at compile time that the two counts agree.
 pub const CONFIG_LEN: usize = 4 * CONFIG_FIELDS;
 /// Words of the configuration.
-pub const CONFIG_FIELDS: usize = 25;
+pub const CONFIG_FIELDS: usize = 26;
 
 /// Reads a little-endian u32 at `at`.
 pub fn u32_at(b: &[u8], at: usize) -> u32 {

@@ -26,6 +26,9 @@ use mpo_frames::{
     get_f32s, kind, put_f32s, u32_at, u64_at, write_frame,
 };
 
+// The frame layout's count of configuration words is the core's.
+const _: () = assert!(mpo_frames::CONFIG_FIELDS == CONFIG_WORDS);
+
 /// The `mcu` row of the host's task table (mpo-host/src/tasks.rs): cartpole-balance.
 const OBS: usize = 5;
 const ACT: usize = 1;
