@@ -694,9 +694,15 @@ pub fn verify(
         return Err(CheckpointError::Corrupt {
             path: meta_path,
             message: format!(
-                "not an {FORMAT} version {VERSION} file (format {}, version {})",
+                "not an {FORMAT} version {VERSION} file (format {}, version {}){}",
                 value.get("format").unwrap_or(&serde_json::Value::Null),
-                value.get("version").unwrap_or(&serde_json::Value::Null)
+                value.get("version").unwrap_or(&serde_json::Value::Null),
+                if value.get("format").and_then(|v| v.as_str()) == Some(FORMAT) {
+                    "; checkpoints of another version are not converted: train again, or use \
+                     the release that wrote it"
+                } else {
+                    ""
+                }
             ),
         });
     }

@@ -46,6 +46,29 @@ fn corrupt_or_truncated_checkpoint_names_the_file() {
     assert!(e.contains("meta.json"), "{e}");
     std::fs::write(&m, &meta).unwrap();
 
+    // An older format version, checksums intact: named, with what to do about it.
+    let text = String::from_utf8(meta.clone()).unwrap();
+    let old = text.replacen("\"version\": 3", "\"version\": 2", 1);
+    assert_ne!(old, text, "meta.json holds \"version\": 3");
+    let sums_path = ck.join("SHA256SUMS");
+    let sums = std::fs::read_to_string(&sums_path).unwrap();
+    let new_sums: String = sums
+        .lines()
+        .map(|l| match l.strip_suffix("  meta.json") {
+            Some(_) => format!(
+                "{}  meta.json\n",
+                mpo_host::checkpoint::sha256_hex(old.as_bytes())
+            ),
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(&m, &old).unwrap();
+    std::fs::write(&sums_path, &new_sums).unwrap();
+    let e = err_text(&mpo(&["eval", "--checkpoint", run.to_str().unwrap()]));
+    assert!(e.contains("version 2") && e.contains("train again"), "{e}");
+    std::fs::write(&m, &meta).unwrap();
+    std::fs::write(&sums_path, &sums).unwrap();
+
     // Intact again: evaluation works.
     let out = mpo(&[
         "eval",
