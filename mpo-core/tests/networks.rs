@@ -287,6 +287,61 @@ fn naive_layer_norm_q(net: &Critic<OBS, ACT, H1, H2>, s: &[f32; OBS], a: &[f32; 
     net.out.b[0] as f64 + (0..H2).map(|i| h2[i] * net.out.w[i][0] as f64).sum::<f64>()
 }
 
+/// `init` leaves the layer norm at the identity affine map, and the layer norm's epsilon is
+/// the definition's: checked where it matters, on first-layer pre-activations whose variance
+/// (about 1e-7) is far below it.
+#[test]
+fn layer_norm_initialises_to_the_identity_and_uses_its_epsilon() {
+    let mut net = random_critic(9, false);
+    assert!(net.ln1.g.iter().all(|&g| g == 1.0), "gain 1 after init");
+    assert!(net.ln1.b.iter().all(|&b| b == 0.0), "bias 0 after init");
+    for v in net
+        .l1s
+        .w
+        .as_flattened_mut()
+        .iter_mut()
+        .chain(&mut net.l1s.b)
+    {
+        *v *= 1e-3;
+    }
+    for v in net.l1a.w.as_flattened_mut() {
+        *v *= 1e-3;
+    }
+    let mut rng = Rng::seed_from_u64(10);
+    let mut obs = [[0f32; OBS]; B];
+    let mut act = [[0f32; ACT]; B];
+    rng.fill_normal(obs.as_flattened_mut());
+    rng.fill_normal(act.as_flattened_mut());
+    let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
+    let mut q = [[0f32; 1]; B];
+    net.forward(&obs, &act, &mut tape, &mut q, true);
+    for n in 0..B {
+        let want = naive_layer_norm_q(&net, &obs[n], &act[n]);
+        let err = (q[n][0] as f64 - want).abs() / (1e-3 + want.abs());
+        assert!(
+            err < 1e-4,
+            "row {n}: {} vs {want} (rel. {err:.1e})",
+            q[n][0]
+        );
+    }
+}
+
+/// `visit_mut` (what Adam, clipping and Polyak averaging walk) visits exactly the tensors of
+/// `tensor`, in order, including the layer norm's.
+#[test]
+fn critic_visit_mut_covers_every_tensor_in_order() {
+    let mut net = random_critic(11, true);
+    let want: Vec<(usize, usize)> = (0..<Critic<OBS, ACT, H1, H2> as Params>::TENSORS)
+        .map(|k| {
+            let t = net.tensor(k);
+            (t.as_ptr() as usize, t.len())
+        })
+        .collect();
+    let mut got = Vec::new();
+    net.visit_mut(&mut |t| got.push((t.as_ptr() as usize, t.len())));
+    assert_eq!(got, want);
+}
+
 #[test]
 fn layer_normalised_critic_matches_the_definition() {
     let net = random_critic(7, true);
