@@ -25,6 +25,9 @@ use mpo_core::parallel::Parallel;
 /// How long an idle worker spins before it sleeps.
 const SPIN: Duration = Duration::from_micros(200);
 
+/// Most items of one job: the count and the next index share the claim word's low 32 bits.
+const MAX_ITEMS: usize = 0xffff;
+
 /// Worker stack size: the learner's per-item work keeps small arrays on the stack.
 const STACK: usize = 8 << 20;
 
@@ -32,10 +35,8 @@ const STACK: usize = 8 << 20;
 type Job<'a> = dyn Fn(usize) + Sync + 'a;
 
 struct Shared {
-    /// `generation << 32 | next item index`.
+    /// `generation << 32 | item count << 16 | next item index`.
     claim: AtomicU64,
-    /// Items in the current job.
-    items: AtomicUsize,
     /// Items of the current job not yet finished.
     pending: AtomicUsize,
     /// The current job, valid while `pending > 0` (see the module doc).
@@ -73,7 +74,6 @@ impl Pool {
     pub fn new(threads: usize) -> std::io::Result<Self> {
         let shared = Arc::new(Shared {
             claim: AtomicU64::new(0),
-            items: AtomicUsize::new(0),
             pending: AtomicUsize::new(0),
             job: Mutex::new(None),
             panicked: AtomicBool::new(false),
@@ -115,6 +115,7 @@ impl Pool {
         if items == 0 {
             return;
         }
+        assert!(items <= MAX_ITEMS, "at most {MAX_ITEMS} items per job");
         if self.workers.is_empty() || items == 1 {
             for k in 0..items {
                 job(k);
@@ -129,10 +130,16 @@ impl Pool {
         // claimed item has finished (`pending` reaches 0), so the borrow outlives every use.
         let erased: *const Job<'static> = unsafe { std::mem::transmute(job as *const Job<'_>) };
         *s.job.lock().expect("pool lock") = Some(JobPtr(erased));
-        s.items.store(items, Ordering::Relaxed);
         s.pending.store(items, Ordering::Relaxed);
         s.panicked.store(false, Ordering::Relaxed);
-        s.claim.store(generation << 32, Ordering::Release);
+        // The item count travels in the claim word itself: a worker still claiming for the
+        // previous job can then never compare its index against this job's count (it once
+        // read a separately stored count, claimed a non-existent item of the old generation
+        // and ran it on this job, and the job could return while that item still ran).
+        s.claim.store(
+            (generation << 32) | ((items as u64) << 16),
+            Ordering::Release,
+        );
         {
             let _g = s.sleep_lock.lock().expect("pool lock");
             s.wake.notify_all();
@@ -170,8 +177,12 @@ fn work(s: &Shared, generation: u64) {
 fn claim(s: &Shared, generation: u64) -> Option<usize> {
     let mut cur = s.claim.load(Ordering::Acquire);
     loop {
-        let (g, k) = (cur >> 32, (cur & 0xffff_ffff) as usize);
-        if g != generation || k >= s.items.load(Ordering::Relaxed) {
+        let (g, n, k) = (
+            cur >> 32,
+            ((cur >> 16) & 0xffff) as usize,
+            (cur & 0xffff) as usize,
+        );
+        if g != generation || k >= n {
             return None;
         }
         match s
