@@ -307,23 +307,7 @@ fn layer_norm_initialises_to_the_identity_and_uses_its_epsilon() {
     for v in net.l1a.w.as_flattened_mut() {
         *v *= 1e-3;
     }
-    let mut rng = Rng::seed_from_u64(10);
-    let mut obs = [[0f32; OBS]; B];
-    let mut act = [[0f32; ACT]; B];
-    rng.fill_normal(obs.as_flattened_mut());
-    rng.fill_normal(act.as_flattened_mut());
-    let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
-    let mut q = [[0f32; 1]; B];
-    net.forward(&obs, &act, &mut tape, &mut q, true);
-    for n in 0..B {
-        let want = naive_layer_norm_q(&net, &obs[n], &act[n]);
-        let err = (q[n][0] as f64 - want).abs() / (1e-3 + want.abs());
-        assert!(
-            err < 1e-4,
-            "row {n}: {} vs {want} (rel. {err:.1e})",
-            q[n][0]
-        );
-    }
+    assert_matches_the_definition(&net, 10, 1.0);
 }
 
 /// `visit_mut` (what Adam, clipping and Polyak averaging walk) visits exactly the tensors of
@@ -344,21 +328,26 @@ fn critic_visit_mut_covers_every_tensor_in_order() {
 
 #[test]
 fn layer_normalised_critic_matches_the_definition() {
-    let net = random_critic(7, true);
-    let mut rng = Rng::seed_from_u64(8);
+    // Large observations: the layer norm makes the first layer blind to their scale.
+    assert_matches_the_definition(&random_critic(7, true), 8, 30.0);
+}
+
+/// The layer-normalised forward pass on random states (scaled by `obs_scale`) and actions
+/// equals [`naive_layer_norm_q`] within 1e-4 relative, and `tanh` bounds the first layer.
+fn assert_matches_the_definition(net: &Critic<OBS, ACT, H1, H2>, seed: u64, obs_scale: f32) {
+    let mut rng = Rng::seed_from_u64(seed);
     let mut obs = [[0f32; OBS]; B];
     let mut act = [[0f32; ACT]; B];
     rng.fill_normal(obs.as_flattened_mut());
     rng.fill_normal(act.as_flattened_mut());
-    // Large observations: the layer norm makes the first layer blind to their scale.
     for v in obs.as_flattened_mut() {
-        *v *= 30.0;
+        *v *= obs_scale;
     }
     let mut tape: Box<CriticTape<B, H1, H2>> = bytemuck::zeroed_box();
     let mut q = [[0f32; 1]; B];
     net.forward(&obs, &act, &mut tape, &mut q, true);
     for n in 0..B {
-        let want = naive_layer_norm_q(&net, &obs[n], &act[n]);
+        let want = naive_layer_norm_q(net, &obs[n], &act[n]);
         let err = (q[n][0] as f64 - want).abs() / (1e-3 + want.abs());
         assert!(
             err < 1e-4,
