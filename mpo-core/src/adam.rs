@@ -220,6 +220,25 @@ mod tests {
     }
 
     #[test]
+    fn the_denominator_floor_adds_to_the_root_of_the_second_moment() {
+        // Gradients near eps: the first step is lr g / (|g| + eps), a fraction of lr that
+        // only the floor decides (a floor subtracted instead would reverse the step).
+        let mut p = Linear::<1, 2>::zeroed();
+        let mut g = Linear::<1, 2>::zeroed();
+        let (mut m, mut v) = (Linear::<1, 2>::zeroed(), Linear::<1, 2>::zeroed());
+        g.w = [[1e-9, -3e-8]];
+        let cfg = AdamConfig::with_lr(0.01);
+        adam_step(&cfg, &mut AdamState::default(), &mut p, &g, &mut m, &mut v);
+        for (got, gi) in p.w[0].iter().zip(g.w[0]) {
+            let want = -0.01 * gi as f64 / (gi.abs() as f64 + 1e-8);
+            assert!(
+                (*got as f64 - want).abs() < 1e-4 * want.abs(),
+                "{got} vs {want}"
+            );
+        }
+    }
+
+    #[test]
     fn blocked_scaled_step_equals_scaling_then_the_plain_step() {
         // Tensors larger than a block, so they are split.
         type P = Linear<300, 70>;

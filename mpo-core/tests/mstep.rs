@@ -597,3 +597,104 @@ fn state_gradient_matches_finite_differences_of_the_loss_written_out() {
     }
     eprintln!("state_gradient vs central differences: worst relative error {worst:.2e}");
 }
+
+/// The multipliers' optimiser written out in f64: RMSProp with bias correction (Adam with
+/// `beta1 = 0`, `beta2 = 0.999`, `eps = 1e-8`) on the raw (log) multipliers, gradient
+/// `(eps_bound - kl) alpha` per entry, where the bound and the KL are either the totals or,
+/// with per-dimension KL, dimension `k`'s own KL against `eps / ACT`. Returns the raw values
+/// after each step.
+fn multipliers_written_out(
+    raw0: [f64; ACT],
+    eps: f64,
+    kls: &[[f64; ACT]],
+    per_dim: bool,
+    lr: f64,
+) -> Vec<[f64; ACT]> {
+    let (b2, e) = (0.999f64, 1e-8f64);
+    let (mut raw, mut v, mut b2_pow) = (raw0, [0f64; ACT], 1f64);
+    let mut out = Vec::new();
+    for kl in kls {
+        b2_pow *= b2;
+        let total: f64 = kl.iter().sum();
+        for k in 0..ACT {
+            let slack = if per_dim {
+                eps / ACT as f64 - kl[k]
+            } else {
+                eps - total
+            };
+            let g = slack * raw[k].exp();
+            v[k] = b2 * v[k] + (1.0 - b2) * g * g;
+            raw[k] -= lr * g / ((v[k] / (1.0 - b2_pow)).sqrt() + e);
+        }
+        out.push(raw);
+    }
+    out
+}
+
+/// `update_multipliers` on hand-picked KLs equals the optimiser written out above, step by
+/// step, with and without per-dimension KL. The KLs put dimension 0 above its per-dimension
+/// bound while the total stays below the whole bound (so the two modes move it in opposite
+/// directions), and change between steps so that the second step's size depends on how the
+/// gradient is scaled by the multiplier (the first step of RMSProp is `lr` times the
+/// gradient's sign whatever its size).
+#[test]
+fn multiplier_steps_equal_the_optimiser_written_out() {
+    use mpo_core::learner::Duals;
+    use mpo_core::mstep::update_multipliers;
+    let (eps_mean, eps_cov) = (0.01f32, 1e-4f32);
+    // Dimension 0: 0.8 of the whole bound (above eps / 2); dimension 1: 0.05 of it.
+    let steps_mean = [[0.008f32, 0.0005], [0.0065, 0.0002], [0.002, 0.0001]];
+    let steps_cov = [[7e-5f32, 1e-6], [9e-5, 2e-6], [1e-5, 4e-6]];
+    for per_dim in [false, true] {
+        let cfg = MpoConfig {
+            eps_mean,
+            eps_cov,
+            per_dim_kl: per_dim,
+            dual_lr: 0.05,
+            ..MpoConfig::REPORT
+        };
+        let mut d = Duals::<ACT> {
+            alpha_mean_raw: [0.5, -1.0],
+            alpha_cov_raw: [2.0, 1.5],
+            ..bytemuck::Zeroable::zeroed()
+        };
+        d.opt = Default::default();
+        let f64s = |x: [f32; ACT]| x.map(|v| v as f64);
+        let want_mean = multipliers_written_out(
+            f64s(d.alpha_mean_raw),
+            eps_mean as f64,
+            &steps_mean.map(f64s),
+            per_dim,
+            0.05,
+        );
+        let want_cov = multipliers_written_out(
+            f64s(d.alpha_cov_raw),
+            eps_cov as f64,
+            &steps_cov.map(f64s),
+            per_dim,
+            0.05,
+        );
+        for t in 0..steps_mean.len() {
+            update_multipliers(&mut d, &cfg, &steps_mean[t], &steps_cov[t]);
+            for k in 0..ACT {
+                for (what, got, want) in [
+                    ("mean", d.alpha_mean_raw[k], want_mean[t][k]),
+                    ("cov", d.alpha_cov_raw[k], want_cov[t][k]),
+                ] {
+                    assert!(
+                        (got as f64 - want).abs() < 1e-5,
+                        "per_dim {per_dim}, step {t}, {what}[{k}]: {got} vs {want}"
+                    );
+                }
+            }
+        }
+        // Per dimension, dimension 0 (above eps / 2) rises at the first step; with the
+        // totals (0.85 of the bound) every multiplier falls.
+        let first = |raw0: f64, t1: f64| t1 > raw0;
+        assert_eq!(
+            first(0.5, want_mean[0][0]),
+            per_dim,
+            "direction, per_dim {per_dim}"
+        );
+    }
+}
