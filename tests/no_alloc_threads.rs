@@ -28,7 +28,8 @@ fn fill(l: &mut Hopper, rng: &mut Rng) {
     }
 }
 
-/// Every path of an update (Retrace, action penalization, shared samples, Polyak targets) on
+/// Every path of an update (Retrace, action penalization, shared samples, Polyak targets,
+/// observation normalisation) on
 /// the host's thread pool allocates nothing on any thread once the pool exists. The only test
 /// in this binary that spreads work over threads, so the all-threads count sees nothing else.
 #[test]
@@ -49,13 +50,22 @@ fn threaded_updates_allocate_nothing_on_any_thread() {
         MpoConfig {
             shared_samples: true,
             per_dim_kl: true,
+            obs_norm_interval: 1,
             ..MpoConfig::REPORT
         },
     ] {
         learner.init(cfg, 5).unwrap();
         for round in 0..3 {
             fill(&mut learner, &mut rng);
-            let (r, n) = count_allocations_all_threads(|| learner.update_with(&pool));
+            let (r, n) = count_allocations_all_threads(|| {
+                if cfg.obs_norm_interval > 0 {
+                    // What the agent does: refit the normaliser, normalise the batch.
+                    let rows = learner.batch[0].obs[0];
+                    learner.fit_obs_norm(&rows);
+                    learner.normalize_batch();
+                }
+                learner.update_with(&pool)
+            });
             r.unwrap();
             assert_eq!(n, 0, "threaded update {round} allocated {n} times");
         }

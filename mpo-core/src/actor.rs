@@ -15,6 +15,7 @@ use crate::gaussian::{Gaussian, softplus_inverse, tri_index};
 use crate::linear::Linear;
 #[cfg(feature = "train")]
 use crate::linear::{accumulate, bias_grad_chunks, relu_backward, transpose, weight_grad_chunks};
+use crate::obs_norm::InputNorm;
 use crate::params::Params;
 use crate::rng::Rng;
 
@@ -28,6 +29,8 @@ pub struct Actor<
     const H1: usize,
     const H2: usize,
 > {
+    /// Observation normalisation (the identity unless fit; never trained by gradients).
+    pub input: InputNorm<OBS>,
     /// Input layer.
     pub l1: Linear<OBS, H1>,
     /// Second hidden layer.
@@ -39,6 +42,7 @@ pub struct Actor<
 }
 
 crate::impl_params_for_fields!(Actor<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize> {
+    input: InputNorm<OBS>,
     l1: Linear<OBS, H1>,
     l2: Linear<H1, H2>,
     mean: Linear<H2, ACT>,
@@ -54,6 +58,7 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     /// close to `N(0, init_std^2 I)` whatever the observation.
     pub fn init(&mut self, rng: &mut Rng, init_std: f32, std_floor: f32) {
         let () = Self::SHAPE_OK;
+        self.input.init();
         self.l1.init_uniform(rng);
         self.l2.init_uniform(rng);
         self.mean.init_uniform(rng);
@@ -66,7 +71,9 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         }
     }
 
-    /// Trunk for a batch: `h1 = relu(l1 x)`, `h2 = relu(l2 h1)`.
+    /// Trunk for a batch: `h1 = relu(l1 x)`, `h2 = relu(l2 h1)`. Batch paths take observations
+    /// already normalised by [`Self::input`] (the learner normalises its batch once); the
+    /// single-state paths below normalise their own input.
     pub fn trunk(&self, obs: &[[f32; OBS]], h1: &mut [[f32; H1]], h2: &mut [[f32; H2]]) {
         self.l1.forward_relu(obs, h1);
         self.l2.forward_relu(h1, h2);
@@ -181,7 +188,8 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     pub fn forward_one(&self, obs: &[f32; OBS], mean: &mut [f32; ACT], chol: &mut [f32; TRI]) {
         let mut h1 = [[0f32; H1]; 1];
         let mut h2 = [[0f32; H2]; 1];
-        self.trunk(core::slice::from_ref(obs), &mut h1, &mut h2);
+        let x = self.input.apply(obs);
+        self.trunk(core::slice::from_ref(&x), &mut h1, &mut h2);
         self.mean.forward(&h2, core::slice::from_mut(mean));
         self.chol.forward(&h2, core::slice::from_mut(chol));
     }
@@ -190,7 +198,8 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     pub fn mean_action(&self, obs: &[f32; OBS], action: &mut [f32; ACT]) {
         let mut h1 = [[0f32; H1]; 1];
         let mut h2 = [[0f32; H2]; 1];
-        self.trunk(core::slice::from_ref(obs), &mut h1, &mut h2);
+        let x = self.input.apply(obs);
+        self.trunk(core::slice::from_ref(&x), &mut h1, &mut h2);
         self.mean.forward(&h2, core::slice::from_mut(action));
     }
 

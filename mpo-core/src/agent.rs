@@ -188,6 +188,10 @@ impl<
     ) -> Result<(), AgentError> {
         self.replay.push(t);
         self.env_steps += 1;
+        if self.obs_norm_due() {
+            let rows = &self.replay.raw().obs[..self.replay.len()];
+            self.learner.fit_obs_norm(rows);
+        }
         let s = self.schedule;
         if self.env_steps >= s.warmup_steps && self.env_steps.is_multiple_of(s.update_interval) {
             for _ in 0..s.updates_per_interval {
@@ -198,13 +202,22 @@ impl<
         Ok(())
     }
 
+    /// True when the observation normalisation is refit after this step: every
+    /// `obs_norm_interval` steps from the end of the warm-up (so before the first update).
+    fn obs_norm_due(&self) -> bool {
+        let every = self.learner.cfg.obs_norm_interval as u64;
+        let warm = self.schedule.warmup_steps;
+        every > 0 && self.env_steps >= warm && (self.env_steps - warm).is_multiple_of(every)
+    }
+
     /// One learner update on a batch drawn as the configuration's policy evaluation needs.
     pub fn update<P: Parallel>(&mut self, par: &P) -> Result<UpdateStats, AgentError> {
         self.fill_batch()?;
         self.learner.update_with(par).map_err(AgentError::Update)
     }
 
-    /// Draws the learner's next batch from the replay (n-step transitions or sequences).
+    /// Draws the learner's next batch from the replay (n-step transitions or sequences),
+    /// normalised when observation normalisation is on.
     pub fn fill_batch(&mut self) -> Result<(), AgentError> {
         let mode = self.batch_mode();
         let mut rng = Rng::from_state(self.sampler);
@@ -212,6 +225,10 @@ impl<
             .replay
             .fill_batch(&mut rng, &mut self.learner.batch, mode);
         self.sampler = rng.state();
-        r.map_err(AgentError::Sample)
+        r.map_err(AgentError::Sample)?;
+        if self.learner.cfg.obs_norm_interval > 0 {
+            self.learner.normalize_batch();
+        }
+        Ok(())
     }
 }

@@ -73,6 +73,11 @@ pub struct MpoConfig {
     /// Acme's `LayerNormMLP` critic torso: the first layer's pre-activations go through a
     /// layer norm and `tanh` instead of a ReLU (`crate::layer_norm`).
     pub critic_layer_norm: bool,
+    /// Observation normalisation (tonic's, `crate::obs_norm`): every this many environment
+    /// steps from the end of the warm-up, the policy's input normalisation is refit to the
+    /// mean and standard deviation of the observations in the replay, and every batch is
+    /// normalised with it before an update; 0 = off (the identity).
+    pub obs_norm_interval: u32,
 }
 
 impl MpoConfig {
@@ -103,6 +108,7 @@ impl MpoConfig {
         shared_samples: false,
         target_tau: 0.0,
         critic_layer_norm: false,
+        obs_norm_interval: 0,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -185,7 +191,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 26;
+pub const CONFIG_WORDS: usize = 27;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -220,6 +226,7 @@ impl MpoConfig {
             f(self.target_tau),
             (self.estep_tol.to_bits() >> 32) as u32,
             self.critic_layer_norm as u32,
+            self.obs_norm_interval,
         ]
     }
 
@@ -260,6 +267,7 @@ impl MpoConfig {
             shared_samples: flag(w[22], "shared_samples")?,
             target_tau: f(w[23]),
             critic_layer_norm: flag(w[25], "critic_layer_norm")?,
+            obs_norm_interval: w[26],
         };
         cfg.validate()?;
         Ok(cfg)
@@ -307,6 +315,7 @@ mod tests {
             target_tau: 0.005,
             estep_tol: 1e-3,
             critic_layer_norm: true,
+            obs_norm_interval: 1000,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();

@@ -9,6 +9,7 @@ use core::fmt::Write;
 
 use crate::actor::Actor;
 use crate::linear::Linear;
+use crate::obs_norm::InputNorm;
 
 /// Writes a Rust module defining `OBS`, `ACT`, `TRI`, `H1`, `H2` and
 /// `pub static ACTOR: mpo_core::actor::Actor<OBS, ACT, TRI, H1, H2>` with `actor`'s parameters.
@@ -51,11 +52,25 @@ pub fn write_actor_source<
         out,
         "pub static ACTOR: mpo_core::actor::Actor<OBS, ACT, TRI, H1, H2> = mpo_core::actor::Actor {{"
     )?;
+    input(out, &actor.input)?;
     layer(out, "l1", &actor.l1)?;
     layer(out, "l2", &actor.l2)?;
     layer(out, "mean", &actor.mean)?;
     layer(out, "chol", &actor.chol)?;
     writeln!(out, "}};")
+}
+
+fn input<W: Write, const OBS: usize>(out: &mut W, n: &InputNorm<OBS>) -> core::fmt::Result {
+    writeln!(
+        out,
+        "    input: mpo_core::obs_norm::InputNorm {{\n        shift:"
+    )?;
+    row_of(out, &n.shift, "        ")?;
+    writeln!(out, "        scale:")?;
+    row_of(out, &n.scale, "        ")?;
+    writeln!(out, "        limit:")?;
+    row_of(out, &n.limit, "        ")?;
+    writeln!(out, "    }},")
 }
 
 fn layer<W: Write, const I: usize, const O: usize>(

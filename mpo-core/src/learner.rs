@@ -449,6 +449,27 @@ impl<
         self.live.actor.mean_action(obs, action);
     }
 
+    /// Refits the policy's observation normalisation to the observations `rows`
+    /// ([`crate::obs_norm`]); the target policy gets the same normalisation, so every
+    /// network of an update sees the batch in one scale.
+    pub fn fit_obs_norm(&mut self, rows: &[[f32; OBS]]) {
+        self.live.actor.input.fit(rows);
+        self.target_actor.input = self.live.actor.input.clone();
+    }
+
+    /// Normalises the states and next states of `self.batch` (its first `sequence_len`
+    /// positions) with the policy's observation normalisation: the batch paths of the
+    /// networks take normalised observations.
+    pub fn normalize_batch(&mut self) {
+        let (norm, len) = (&self.live.actor.input, self.cfg.sequence_len as usize);
+        for b in self.batch.iter_mut() {
+            for k in 0..len {
+                norm.apply_rows(&mut b.obs[k]);
+                norm.apply_rows(&mut b.next_obs[k]);
+            }
+        }
+    }
+
     /// The arithmetic of one update in FLOPs under the current configuration, counting the
     /// network passes (2 FLOPs per multiply-add; forward, weight and input gradients), not the
     /// per-sample Gaussian algebra.

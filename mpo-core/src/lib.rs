@@ -3,7 +3,7 @@
 //!
 //! The paper's concepts are the modules: [`gaussian`] (the policy's full-covariance
 //! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers and, optionally for the
-//! critic, a [`layer_norm`]),
+//! critic, a [`layer_norm`]; the policy's input goes through [`obs_norm`]),
 //! [`adam`], [`replay`] and [`rng`]; the algorithm's steps are [`evaluation`] (policy
 //! evaluation targets), [`estep`] and [`mstep`], composed by [`learner`], which spreads its
 //! work over threads through [`parallel`] with the same bits for any thread count. Every routine writes into buffers owned by the caller,
@@ -45,6 +45,7 @@ pub mod learner;
 pub mod linear;
 #[cfg(feature = "train")]
 pub mod mstep;
+pub mod obs_norm;
 #[cfg(feature = "train")]
 pub mod parallel;
 pub mod params;

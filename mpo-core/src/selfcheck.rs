@@ -169,6 +169,7 @@ impl SelfCheck {
             MpoConfig {
                 shared_samples: true,
                 critic_layer_norm: true,
+                obs_norm_interval: 1,
                 ..base
             },
         ];
@@ -194,6 +195,13 @@ impl SelfCheck {
                         *x = -1.0 - rng.uniform();
                     }
                 }
+                if cfg.obs_norm_interval > 0 {
+                    // The observation normaliser fit to the batch's first chunk of states,
+                    // then applied to the whole batch, as the agent does with its replay.
+                    let rows = l.batch[0].obs[0];
+                    l.fit_obs_norm(&rows);
+                    l.normalize_batch();
+                }
                 l.update().expect("finite update");
             }
             let d = &l.live.duals;
@@ -218,6 +226,13 @@ pub fn forward_checksum(seed: u64) -> u64 {
     let mut actor = A::zeroed();
     let mut rng = Rng::seed_from_u64(seed);
     actor.init(&mut rng, 0.5, FLOOR);
+    // A non-trivial observation normaliser (shifts and scales away from the identity, one
+    // input clipped), so the firmware's normalisation is in the fingerprint too.
+    for j in 0..OBS {
+        actor.input.shift[j] = 0.25 * rng.normal();
+        actor.input.scale[j] = 0.5 + rng.uniform();
+        actor.input.limit[j] = if j == 0 { 0.1 } else { crate::obs_norm::CLIP };
+    }
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for _ in 0..16 {
         let mut obs = [0f32; OBS];

@@ -40,7 +40,7 @@ use crate::tasks::Sizes;
 /// Format identifier in `meta.json`.
 pub const FORMAT: &str = "mpo-checkpoint";
 /// Format version; bumped on any incompatible change.
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 /// The checkpoint's subdirectory in a run directory.
 pub const SUBDIR: &str = "checkpoint";
 /// Where a checkpoint can be found in a run directory after a crash, in order of preference
@@ -187,6 +187,9 @@ pub fn actor_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
     let tri = s.act * (s.act + 1) / 2;
     let [h1, h2] = s.actor;
     vec![
+        ("in.shift", vec![s.obs]),
+        ("in.scale", vec![s.obs]),
+        ("in.limit", vec![s.obs]),
         ("l1.w", vec![s.obs, h1]),
         ("l1.b", vec![h1]),
         ("l2.w", vec![h1, h2]),

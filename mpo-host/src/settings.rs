@@ -110,6 +110,9 @@ pub struct MpoSettings {
     pub target_tau: f64,
     /// Acme's LayerNormMLP critic torso (layer norm and tanh after the first layer).
     pub critic_layer_norm: bool,
+    /// Observation normalisation: refit to the replay's observations every this many steps
+    /// from the end of the warm-up; 0 = off.
+    pub obs_norm_interval: u32,
 }
 
 impl MpoSettings {
@@ -141,6 +144,7 @@ impl MpoSettings {
         shared_samples: false,
         target_tau: 0.0,
         critic_layer_norm: false,
+        obs_norm_interval: 0,
     };
 
     /// The learner's configuration (one `f64 -> f32` rounding per field).
@@ -177,6 +181,7 @@ impl MpoSettings {
             shared_samples: self.shared_samples,
             target_tau: self.target_tau as f32,
             critic_layer_norm: self.critic_layer_norm,
+            obs_norm_interval: self.obs_norm_interval,
             ..MpoConfig::REPORT
         }
     }

@@ -48,8 +48,9 @@ fn corrupt_or_truncated_checkpoint_names_the_file() {
 
     // An older format version, checksums intact: named, with what to do about it.
     let text = String::from_utf8(meta.clone()).unwrap();
-    let old = text.replacen("\"version\": 3", "\"version\": 2", 1);
-    assert_ne!(old, text, "meta.json holds \"version\": 3");
+    let current = format!("\"version\": {}", mpo_host::checkpoint::VERSION);
+    let old = text.replacen(&current, "\"version\": 2", 1);
+    assert_ne!(old, text, "meta.json holds {current}");
     let sums_path = ck.join("SHA256SUMS");
     let sums = std::fs::read_to_string(&sums_path).unwrap();
     let new_sums: String = sums

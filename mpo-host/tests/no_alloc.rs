@@ -1,5 +1,6 @@
 //! The act-and-learn loop allocates nothing: a counting allocator around
-//! `Trainer::collect` over episode boundaries, warm-up and learner updates.
+//! `Trainer::collect` over episode boundaries, warm-up, learner updates and observation
+//! normalisation's refits.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -45,6 +46,9 @@ fn collect_and_learn_allocate_nothing() {
         let mut settings = defaults(row);
         settings.mpo.policy_evaluation = evaluation;
         settings.mpo.n_step = n;
+        // Observation normalisation on for n-step: its refits (the whole replay, every 300
+        // steps) run inside `collect` too.
+        settings.mpo.obs_norm_interval = if n == 3 { 300 } else { 0 };
         let mut t = Tiny::new(&settings, None, 2).unwrap();
         let before = ALLOCS.load(Ordering::SeqCst);
         // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).

@@ -109,8 +109,8 @@ fn ctrl_c_checkpoints_at_an_episode_boundary_and_resume_matches() {
 }
 
 /// The learner's thread count changes nothing: one, two and three threads give the same
-/// parameters and metrics, for TD and for Retrace with action penalization, Polyak targets
-/// and the layer-normalised critic; and a run
+/// parameters and metrics, for TD and for Retrace with action penalization, Polyak targets,
+/// the layer-normalised critic and observation normalisation; and a run
 /// resumed on a different number of threads still matches.
 #[test]
 fn thread_count_does_not_change_a_bit() {
@@ -128,6 +128,8 @@ fn thread_count_does_not_change_a_bit() {
                 "mpo.target_tau=0.01",
                 "--set",
                 "mpo.critic_layer_norm=true",
+                "--set",
+                "mpo.obs_norm_interval=200",
             ][..],
         ),
     ] {
