@@ -116,11 +116,6 @@ fn sum_rows<const M: usize>(q: &[[f32; M]], eta: f64) -> DualSums {
     s
 }
 
-/// The dual `g(eta)` (for tests and diagnostics).
-pub fn dual<const M: usize>(q: &[[f32; M]], eps: f32, eta: f64) -> f64 {
-    dual_terms_from(&sum_rows(q, eta), eps as f64, eta).0
-}
-
 /// Minimises the dual over `eta` in `[ETA_MIN, ETA_MAX]`, starting from `eta_start`.
 ///
 /// Solves `h(u) = eps - KL(e^u) = 0` (monotone increasing in `u = ln eta`) by Newton steps

@@ -228,37 +228,6 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
         }
     }
 
-    /// Draws `out.len()` transitions uniformly with replacement (their age indices).
-    pub fn sample_indices(&self, rng: &mut Rng, out: &mut [usize]) -> Result<(), SampleError> {
-        if self.is_empty() {
-            return Err(SampleError::NotEnoughData);
-        }
-        for k in out {
-            *k = rng.below(self.len) as usize;
-        }
-        Ok(())
-    }
-
-    /// Copies the transitions at age indices `idx` into batch arrays (row `n` from `idx[n]`).
-    pub fn gather(
-        &self,
-        idx: &[usize],
-        obs: &mut [[f32; OBS]],
-        action: &mut [[f32; ACT]],
-        reward: &mut [f32],
-        next_obs: &mut [[f32; OBS]],
-        discount: &mut [f32],
-    ) {
-        for (n, &k) in idx.iter().enumerate() {
-            let i = self.slot(k);
-            obs[n] = self.obs[i];
-            action[n] = self.action[i];
-            reward[n] = self.reward[i];
-            next_obs[n] = self.next_obs[i];
-            discount[n] = self.discount[i];
-        }
-    }
-
     /// Draws the start (age index) of a sequence of `len` consecutive transitions of one
     /// episode, uniformly over the valid starts (rejection sampling, at most 1000 tries).
     pub fn sample_sequence_start(&self, rng: &mut Rng, len: usize) -> Result<usize, SampleError> {
@@ -351,11 +320,6 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
         chunk.next_obs[0][n] = self.next_obs[last];
         chunk.bootstrap[0][n] = b;
         chunk.behaviour_log_prob[0][n] = self.behaviour_log_prob[first];
-    }
-
-    /// Behaviour log-probability of the transition at age index `k`.
-    pub fn behaviour_log_prob(&self, k: usize) -> f32 {
-        self.behaviour_log_prob[self.slot(k)]
     }
 
     /// Every stored column in slot order (not age order) with the ring's counters: what a
@@ -511,22 +475,184 @@ mod tests {
         }
     }
 
+    /// A batch of `C` chunks of 8 rows of sequences up to 4.
+    type Chunks<const C: usize> = [BatchChunk<8, 4, 2, 1>; C];
+
+    fn chunks<const C: usize>() -> Box<Chunks<C>> {
+        bytemuck::zeroed_box()
+    }
+
     #[test]
-    fn uniform_sampling_is_deterministic_and_covers() {
+    fn one_step_rows_are_uniform_deterministic_and_cover_the_replay() {
         let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
         r.begin_episode();
         for i in 0..10 {
             r.push(&t(i as f32));
         }
-        let mut a = [0usize; 1000];
-        let mut b = [0usize; 1000];
-        r.sample_indices(&mut Rng::seed_from_u64(9), &mut a)
+        let mode = BatchMode::OneStep { n: 1, gamma: 0.9 };
+        let (mut a, mut b) = (chunks::<125>(), chunks::<125>());
+        r.fill_batch(&mut Rng::seed_from_u64(9), &mut a[..], mode)
             .unwrap();
-        r.sample_indices(&mut Rng::seed_from_u64(9), &mut b)
+        r.fill_batch(&mut Rng::seed_from_u64(9), &mut b[..], mode)
             .unwrap();
-        assert_eq!(a, b);
         let mut seen = [0; 10];
-        a.iter().for_each(|&k| seen[k] += 1);
+        for (ca, cb) in a.iter().zip(b.iter()) {
+            assert_eq!(ca.obs[0], cb.obs[0]);
+            for n in 0..8 {
+                let x = ca.obs[0][n][0];
+                assert_eq!(ca.reward[0][n], x, "one step: the transition's own reward");
+                assert_eq!(ca.next_obs[0][n], t(x).next_obs);
+                assert_eq!(ca.bootstrap[0][n], 0.9);
+                assert_eq!(ca.behaviour_log_prob[0][n], -x);
+                seen[x as usize] += 1;
+            }
+        }
         assert!(seen.iter().all(|&c| c > 60), "{seen:?}");
+    }
+
+    /// Transition `i`: reward `i`, discount 0 after every seventh (a terminal), episodes of
+    /// lengths 5, 9, 3, 12, ... so folds end at episode ends, at terminals and at the end of the
+    /// stored data, in a ring that has wrapped.
+    fn varied(r: &mut Replay<16, 2, 1>) -> std::vec::Vec<(Transition<2, 1>, u64)> {
+        let mut all = std::vec::Vec::new();
+        let mut i = 0;
+        for (ep, len) in [5, 9, 3, 12].into_iter().enumerate() {
+            r.begin_episode();
+            for _ in 0..len {
+                let mut x = t(i as f32);
+                x.discount = if i % 7 == 6 { 0.0 } else { 1.0 };
+                r.push(&x);
+                all.push((x, ep as u64));
+                i += 1;
+            }
+        }
+        all.split_off(all.len() - 16)
+    }
+
+    #[test]
+    fn n_step_rows_fold_what_follows_in_the_episode_written_out() {
+        let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
+        let stored = varied(&mut r);
+        assert_eq!(r.len(), 16);
+        let gamma = 0.9f64;
+        for steps in [1u32, 3, 64] {
+            let mut c = chunks::<40>();
+            let mode = BatchMode::OneStep {
+                n: steps,
+                gamma: 0.9,
+            };
+            r.fill_batch(&mut Rng::seed_from_u64(steps as u64), &mut c[..], mode)
+                .unwrap();
+            for n in 0..8 * 40 {
+                let (ch, row) = (&c[n / 8], n % 8);
+                let x = ch.obs[0][row][0];
+                let k = stored.iter().position(|(s, _)| s.obs[0] == x).unwrap();
+                // Written out: rewards while in the same episode and stored, discounted by
+                // gamma and the discounts before them.
+                let (mut ret, mut mult, mut last) = (0f64, 1f64, k);
+                let mut j = k;
+                while j < stored.len() && j < k + steps as usize && stored[j].1 == stored[k].1 {
+                    ret += mult * stored[j].0.reward as f64;
+                    mult *= gamma * stored[j].0.discount as f64;
+                    last = j;
+                    j += 1;
+                }
+                assert!(
+                    (ch.reward[0][row] as f64 - ret).abs() < 1e-4,
+                    "n {steps}, row {n}"
+                );
+                assert!(
+                    (ch.bootstrap[0][row] as f64 - mult).abs() < 1e-6,
+                    "n {steps}, row {n}"
+                );
+                assert_eq!(
+                    ch.next_obs[0][row], stored[last].0.next_obs,
+                    "n {steps}, row {n}"
+                );
+                assert_eq!(ch.action[0][row], stored[k].0.action);
+                assert_eq!(ch.behaviour_log_prob[0][row], -x);
+            }
+        }
+    }
+
+    #[test]
+    fn sequence_rows_are_consecutive_columns_of_one_episode() {
+        let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
+        let stored = varied(&mut r);
+        let mode = BatchMode::Sequences { len: 4, gamma: 0.5 };
+        let mut c = chunks::<40>();
+        r.fill_batch(&mut Rng::seed_from_u64(4), &mut c[..], mode)
+            .unwrap();
+        let mut starts = std::collections::BTreeSet::new();
+        for ch in c.iter() {
+            for row in 0..8 {
+                let x = ch.obs[0][row][0];
+                let k = stored.iter().position(|(s, _)| s.obs[0] == x).unwrap();
+                starts.insert(k);
+                for p in 0..4 {
+                    let (s, ep) = &stored[k + p];
+                    assert_eq!(*ep, stored[k].1, "inside one episode");
+                    assert_eq!(ch.obs[p][row], s.obs);
+                    assert_eq!(ch.action[p][row], s.action);
+                    assert_eq!(ch.reward[p][row], s.reward);
+                    assert_eq!(ch.next_obs[p][row], s.next_obs);
+                    assert_eq!(ch.bootstrap[p][row], 0.5 * s.discount);
+                    assert_eq!(ch.behaviour_log_prob[p][row], s.behaviour_log_prob);
+                }
+            }
+        }
+        // Stored (ages): 0 the 9-step episode's last transition, 1-3 the 3-step episode,
+        // 4-15 the 12-step one; every start of a 4-sequence inside one episode is drawn.
+        let valid: std::vec::Vec<usize> = (0..=12)
+            .filter(|&k| stored[k].1 == stored[k + 3].1)
+            .collect();
+        assert_eq!(starts.into_iter().collect::<std::vec::Vec<_>>(), valid);
+        // Exactly one episode of exactly the sequence length: its only start.
+        let mut one: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
+        one.begin_episode();
+        for i in 0..4 {
+            one.push(&t(i as f32));
+        }
+        assert_eq!(
+            one.sample_sequence_start(&mut Rng::seed_from_u64(1), 4),
+            Ok(0)
+        );
+        assert_eq!(
+            one.sample_sequence_start(&mut Rng::seed_from_u64(1), 5),
+            Err(SampleError::NotEnoughData)
+        );
+        assert_eq!(
+            one.sample_sequence_start(&mut Rng::seed_from_u64(1), 0),
+            Err(SampleError::NotEnoughData)
+        );
+    }
+
+    #[test]
+    fn clear_empties_and_a_non_full_ring_restores() {
+        let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
+        assert_eq!(r.capacity(), 16);
+        r.begin_episode();
+        for i in 0..5 {
+            r.push(&t(i as f32));
+        }
+        // A ring that has not wrapped (len = inserted < CAP) restores.
+        let ok = r.counters();
+        let mut c: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
+        assert_eq!(c.set_counters(ok), Ok(()));
+        assert_eq!(c.counters(), ok);
+        r.clear();
+        assert!(r.is_empty() && r.counters().len == 0 && r.inserted() == 0);
+        let mut ch = chunks::<1>();
+        let mode = BatchMode::OneStep { n: 1, gamma: 0.9 };
+        let e = r.fill_batch(&mut Rng::seed_from_u64(1), &mut ch[..], mode);
+        assert_eq!(e, Err(SampleError::NotEnoughData));
+        r.push(&t(7.0));
+        assert_eq!((r.len(), r.get(0)), (1, t(7.0)));
+        assert_eq!(r.counters().head, 1, "pushes start again at slot 0");
+        // Errors say what is wrong.
+        use std::string::ToString;
+        assert!(InvalidCounters.to_string().contains("counters"));
+        assert!(SampleError::NotEnoughData.to_string().contains("too few"));
+        assert!(!SampleError::NoSequence.to_string().is_empty());
     }
 }

@@ -149,3 +149,119 @@ fn solver_is_deterministic_and_cheap_from_a_warm_start() {
         warm.iterations
     );
 }
+
+/// The problems of the tests above at several scales, for the solver's paths.
+fn problems() -> Vec<Vec<[f32; M]>> {
+    let mut rng = Rng::seed_from_u64(24);
+    [0.01f32, 1.0, 30.0, 1e4]
+        .iter()
+        .map(|&scale| random_q(&mut rng, scale))
+        .collect()
+}
+
+/// Cold starts anywhere in the temperature range converge in Newton's time: Newton steps
+/// (limited to a factor e^4 until the root is bracketed) converge quadratically, while
+/// bisection over the bracket `[ln 1e-8, ln 1e12]` (46 wide) would need about 35 halvings to
+/// reach `|h| <= 1e-9 eps`. At the solution the KL meets the bound and the reported KL and dual
+/// are those of the returned temperature.
+#[test]
+fn cold_starts_converge_in_newton_time_to_the_bound() {
+    let mut worst = 0;
+    for q in problems() {
+        let want = brute_force_eta(&q);
+        for start in [1e-7f32, 1e-3, 1.0, 1e3, 1e7, 1e11] {
+            let s = solve_temperature(&q, EPS, start, 1e-9, 100);
+            assert!(s.converged, "start {start}: {s:?}");
+            assert!(
+                ((s.eta as f64 - want) / want).abs() < 1e-5,
+                "start {start}: {s:?} vs {want}"
+            );
+            assert!(
+                (s.kl - EPS as f64).abs() <= 1e-9 * EPS as f64 + 1e-12,
+                "{s:?}"
+            );
+            let mut w = vec![[0f32; M]; B];
+            let kl = weights(&q, s.eta, &mut w);
+            assert!((kl - s.kl).abs() < 1e-4, "reported KL {} vs {kl}", s.kl);
+            assert!((s.dual - naive_dual(&q, s.eta as f64)).abs() < 1e-6 * s.dual.abs().max(1.0));
+            // Distance to the root in ln eta, in limited steps of 4, plus Newton's few.
+            let far = ((start as f64).ln() - want.ln()).abs();
+            let bound = (far / 4.0).ceil() as u32 + 8;
+            assert!(
+                s.iterations <= bound,
+                "start {start}: {} > {bound} iterations",
+                s.iterations
+            );
+            worst = worst.max(s.iterations);
+        }
+    }
+    eprintln!("most iterations from a cold start: {worst}");
+}
+
+/// A bound the KL cannot reach (above `ln M`, the KL of weights on one sample) or a batch
+/// whose values are all equal (KL 0 at every temperature): the solver walks down to the
+/// smallest temperature in steps of e^4, evaluates it, reports no convergence, and stops.
+#[test]
+fn unreachable_bounds_end_at_the_smallest_temperature() {
+    let q = &problems()[1];
+    let flat = vec![[2.5f32; M]; B];
+    for (label, q, eps) in [("eps > ln M", q, 3.5f32), ("equal values", &flat, EPS)] {
+        for start in [1e-8f32, 1e-5, 1.0, 1e6] {
+            let s = solve_temperature(q, eps, start, 1e-9, 100);
+            assert!(!s.converged, "{label}, start {start}: {s:?}");
+            assert_eq!(
+                s.eta,
+                mpo_core::estep::ETA_MIN as f32,
+                "{label}, start {start}"
+            );
+            assert!(s.kl < eps as f64, "{label}: {s:?}");
+            let steps = ((start as f64).ln() - mpo_core::estep::ETA_MIN.ln()) / 4.0;
+            assert!(
+                s.iterations <= steps.ceil() as u32 + 2,
+                "{label}, start {start}: {s:?}"
+            );
+        }
+    }
+}
+
+/// Values so spread that even the largest temperature leaves the weights on one sample
+/// (KL above the bound everywhere): the solver walks up to the largest temperature and stops
+/// there, unconverged.
+#[test]
+fn a_bound_beyond_the_largest_temperature_ends_there() {
+    let mut rng = Rng::seed_from_u64(25);
+    let q: Vec<[f32; M]> = (0..B)
+        .map(|_| core::array::from_fn(|_| 1e16 * rng.normal()))
+        .collect();
+    for start in [1.0f32, 1e9, 1e12] {
+        let s = solve_temperature(&q, EPS, start, 1e-9, 100);
+        assert!(!s.converged, "start {start}: {s:?}");
+        assert_eq!(s.eta, mpo_core::estep::ETA_MAX as f32, "start {start}");
+        assert!(s.kl > EPS as f64, "{s:?}");
+        let steps = (mpo_core::estep::ETA_MAX.ln() - (start as f64).ln()) / 4.0;
+        assert!(
+            s.iterations <= steps.ceil() as u32 + 2,
+            "start {start}: {s:?}"
+        );
+    }
+}
+
+/// `max_iter` bounds the evaluations (one more only to evaluate a clamp it stepped to), and
+/// the result is always the last temperature evaluated: with one evaluation allowed, the
+/// start itself.
+#[test]
+fn max_iter_bounds_the_work() {
+    let q = &problems()[2];
+    for max_iter in 1..6 {
+        let s = solve_temperature(q, EPS, 1e6, 1e-12, max_iter);
+        assert!(s.iterations <= max_iter + 1, "{max_iter}: {s:?}");
+        assert!(!s.converged, "{max_iter}: {s:?}");
+        let g = naive_dual(q, s.eta as f64);
+        assert!(
+            (s.dual - g).abs() < 1e-6 * g.abs().max(1.0),
+            "{max_iter}: {s:?}"
+        );
+    }
+    let one = solve_temperature(q, EPS, 1e6, 1e-12, 1);
+    assert_eq!((one.eta, one.iterations), (1e6, 1));
+}
