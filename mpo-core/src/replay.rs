@@ -514,9 +514,18 @@ mod tests {
     /// lengths 5, 9, 3, 12, ... so folds end at episode ends, at terminals and at the end of the
     /// stored data, in a ring that has wrapped.
     fn varied(r: &mut Replay<16, 2, 1>) -> std::vec::Vec<(Transition<2, 1>, u64)> {
+        episodes(r, &[5, 9, 3, 12])
+    }
+
+    /// Episodes of the given lengths (transition `i` as in [`varied`]); the stored ones in age
+    /// order with their episode numbers.
+    fn episodes(
+        r: &mut Replay<16, 2, 1>,
+        lens: &[usize],
+    ) -> std::vec::Vec<(Transition<2, 1>, u64)> {
         let mut all = std::vec::Vec::new();
         let mut i = 0;
-        for (ep, len) in [5, 9, 3, 12].into_iter().enumerate() {
+        for (ep, &len) in lens.iter().enumerate() {
             r.begin_episode();
             for _ in 0..len {
                 let mut x = t(i as f32);
@@ -531,9 +540,17 @@ mod tests {
 
     #[test]
     fn n_step_rows_fold_what_follows_in_the_episode_written_out() {
-        let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
-        let stored = varied(&mut r);
-        assert_eq!(r.len(), 16);
+        // Several episodes, and one episode longer than the ring (the newest transition's
+        // successor in the ring is the oldest, of the same episode, yet not its successor).
+        for lens in [&[5, 9, 3, 12][..], &[20]] {
+            let mut r: Box<Replay<16, 2, 1>> = bytemuck::zeroed_box();
+            let stored = episodes(&mut r, lens);
+            assert_eq!(r.len(), 16);
+            check_folds(&r, &stored);
+        }
+    }
+
+    fn check_folds(r: &Replay<16, 2, 1>, stored: &[(Transition<2, 1>, u64)]) {
         let gamma = 0.9f64;
         for steps in [1u32, 3, 64] {
             let mut c = chunks::<40>();
