@@ -265,3 +265,74 @@ fn max_iter_bounds_the_work() {
     let one = solve_temperature(q, EPS, 1e6, 1e-12, 1);
     assert_eq!((one.eta, one.iterations), (1e6, 1));
 }
+
+/// With a tolerance of 0 (never met exactly) the solver stops once the bracket around the
+/// root is narrower than 1e-12 in `ln eta`, long before a generous `max_iter`, at the root.
+#[test]
+fn a_collapsed_bracket_stops_the_solver() {
+    for q in problems() {
+        let s = solve_temperature(&q, EPS, 1.0, 0.0, 1000);
+        assert!(s.iterations < 100, "{s:?}");
+        let want = brute_force_eta(&q);
+        assert!(
+            ((s.eta as f64 - want) / want).abs() < 1e-5,
+            "{s:?} vs {want}"
+        );
+    }
+}
+
+/// The temperatures the solver evaluates, recorded through `solve_temperature_with`: before
+/// the root is bracketed each move is at most 4 in `ln eta`, and once a point on each side
+/// of the root has been evaluated every later point lies between the closest two (Newton
+/// inside the bracket, else bisection): the safeguards, observed directly. A point's side is
+/// the sign of `eps - KL` there (KL below the bound: above the root).
+#[test]
+fn evaluated_temperatures_stay_inside_the_bracket() {
+    use mpo_core::estep::{DualSums, dual_row, solve_temperature_with};
+    // The four problems of the other tests, then batches with a few outlying values, whose
+    // KL curve bends sharply (Newton steps from below the root overshoot the bracket there).
+    let mut rng = Rng::seed_from_u64(26);
+    let mut all = problems();
+    for k in 0..40 {
+        let mut q = random_q(&mut rng, 1.0 + k as f32);
+        for row in q.iter_mut().step_by(3) {
+            row[k % M] += 50.0 * (1 + k % 4) as f32;
+        }
+        all.push(q);
+    }
+    for q in all {
+        for start in [1e-7f32, 1e-2, 0.3, 3.0, 1e4, 1e11] {
+            let mut seen: Vec<(f64, f64)> = Vec::new();
+            let mut eval = |eta: f64| {
+                let mut s = DualSums::default();
+                for row in &q {
+                    s.add(&dual_row(row, eta));
+                }
+                seen.push((eta.ln(), EPS as f64 - s.kl / s.rows as f64));
+                s
+            };
+            let s = solve_temperature_with(EPS, start, 1e-9, 100, &mut eval);
+            assert!(s.converged, "{s:?}");
+            let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+            for w in seen.windows(2) {
+                let ((u, h), (next, _)) = (w[0], w[1]);
+                if h > 0.0 {
+                    hi = hi.min(u);
+                } else {
+                    lo = lo.max(u);
+                }
+                if lo.is_finite() && hi.is_finite() {
+                    assert!(
+                        next > lo && next < hi,
+                        "{next} outside ({lo}, {hi}): {seen:?}"
+                    );
+                } else {
+                    assert!(
+                        (next - u).abs() <= 4.0 + 1e-12,
+                        "unbracketed step {u} -> {next}"
+                    );
+                }
+            }
+        }
+    }
+}
