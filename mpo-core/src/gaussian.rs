@@ -108,11 +108,6 @@ impl<const A: usize> Gaussian<A> {
         Self { mu: *mean, l }
     }
 
-    /// Solves `L x = b` (forward substitution).
-    pub fn solve_l(&self, b: &[f32; A]) -> [f32; A] {
-        solve_lower(&self.l, b)
-    }
-
     /// `sum_j ln L_jj = 0.5 ln det Sigma`.
     pub fn half_log_det(&self) -> f32 {
         let mut s = 0.0;

@@ -4,7 +4,8 @@
 
 use mpo_core::gaussian::{
     Gaussian, GaussianGrad, SampleStats, head_backward, kl_parts, kl_parts_grad, kl_per_dim,
-    kl_per_dim_grad, tri_index, weighted_log_prob_cov, weighted_log_prob_mean,
+    kl_per_dim_grad, softplus, softplus_inverse, tri_index, weighted_log_prob_cov,
+    weighted_log_prob_mean,
 };
 use mpo_core::rng::Rng;
 use nalgebra::{SMatrix, SVector};
@@ -65,6 +66,76 @@ fn log_prob_matches_direct_formula() {
             * ((2.0 * std::f64::consts::PI * std::f64::consts::E).powi(A as i32) * s.determinant())
                 .ln();
         assert!((g.entropy() as f64 - h).abs() < 1e-4, "entropy");
+    }
+}
+
+/// Both branches of the softplus and its inverse (the inverse sets the policy's initial
+/// standard deviation): against `ln(1 + e^x)` and `ln(e^y - 1)` in f64, and past the switch at
+/// 20, where the f32 exponential would overflow to infinity without it.
+#[test]
+fn softplus_and_its_inverse_match_f64_on_both_branches() {
+    for i in 0..=260 {
+        let x = -10.0 + 0.5 * i as f32; // -10 ..= 120
+        let want = (1.0 + (x as f64).exp()).ln();
+        let got = softplus(x) as f64;
+        assert!(
+            (got - want).abs() <= 1e-6 * (1.0 + want),
+            "softplus({x}) = {got}, want {want}"
+        );
+    }
+    for i in 1..=240 {
+        let y = 0.5 * i as f32; // 0.5 ..= 120
+        let want = ((y as f64).exp_m1()).ln();
+        let got = softplus_inverse(y) as f64;
+        assert!(
+            (got - want).abs() <= 1e-5 * (1.0 + want.abs()),
+            "softplus_inverse({y}) = {got}, want {want}"
+        );
+        let back = softplus(softplus_inverse(y));
+        assert!(
+            (back - y).abs() <= 1e-5 * y,
+            "softplus(softplus_inverse({y})) = {back}"
+        );
+    }
+    // Small scales, as a policy initialised near its floor would ask.
+    for y in [1e-3f32, 1e-2, 0.1] {
+        let want = ((y as f64).exp_m1()).ln();
+        assert!(
+            (softplus_inverse(y) as f64 - want).abs() < 1e-4 * want.abs(),
+            "softplus_inverse({y})"
+        );
+    }
+}
+
+/// `transform` is `mu + L z` and `std_devs` the square roots of `diag(L L^T)`, written out in f64.
+#[test]
+fn transform_and_std_devs_are_the_factor_written_out() {
+    let mut rng = Rng::seed_from_u64(23);
+    for _ in 0..50 {
+        let (m, c) = random_head(&mut rng);
+        let g = Gaussian::from_head(&m, &c, FLOOR);
+        let mut z = [0f32; A];
+        rng.fill_normal(&mut z);
+        let mut a = [0f32; A];
+        g.transform(&z, &mut a);
+        let s = sigma_f64(&g);
+        let sd = g.std_devs();
+        for j in 0..A {
+            let mut want = g.mu[j] as f64;
+            for k in 0..=j {
+                want += g.l[j][k] as f64 * z[k] as f64;
+            }
+            assert!(
+                (a[j] as f64 - want).abs() < 1e-5 * (1.0 + want.abs()),
+                "a[{j}]"
+            );
+            let sd_want = s[(j, j)].sqrt();
+            assert!(
+                (sd[j] as f64 - sd_want).abs() < 1e-5 * sd_want,
+                "std[{j}] {} vs {sd_want}",
+                sd[j]
+            );
+        }
     }
 }
 
