@@ -169,6 +169,8 @@ pub fn solve_temperature_with(
         // Until both ends are known, Newton steps are limited to 4 (a factor e^4 in eta) so a
         // flat dual cannot throw the iterate to a clamp.
         let step_ok = newton.is_finite() && newton > lo && newton < hi && (newton - u).abs() <= 4.0;
+        // A walk that reaches a clamp needs no case of its own: if the sign holds there, the
+        // next pass sets the clamp as the other end too and the collapsed bracket stops it.
         u = if step_ok {
             newton
         } else if lo == lo_lim && h > 0.0 {
@@ -178,16 +180,6 @@ pub fn solve_temperature_with(
         } else {
             0.5 * (lo + hi)
         };
-        if (u == lo_lim && h > 0.0) || (u == hi_lim && h < 0.0) {
-            // Evaluate at the clamp once more and stop there.
-            let (g2, h2, _) = terms(libm::exp(u));
-            last = (u, g2, h2);
-            it += 1;
-            converged = h2.abs() <= tol * eps;
-            if (h2 > 0.0) == (h > 0.0) {
-                break;
-            }
-        }
     }
     // The result is the last point evaluated (no extra pass over the batch).
     let (u, g, h) = last;
