@@ -147,15 +147,12 @@ pub fn solve_temperature_with(
     let mut u = libm::log((eta_start as f64).clamp(ETA_MIN, ETA_MAX));
     let (mut lo, mut hi) = (lo_lim, hi_lim);
     let mut it = 0;
-    let mut converged = false;
-    let mut last: (f64, f64, f64);
-    loop {
+    // The result is the last point evaluated (no extra pass over the batch).
+    let (u, g, h) = loop {
         let (g, h, dh) = terms(libm::exp(u));
-        last = (u, g, h);
         it += 1;
         if h.abs() <= tol * eps {
-            converged = true;
-            break;
+            break (u, g, h);
         }
         if h > 0.0 {
             hi = u; // KL below eps: the root is at a smaller temperature
@@ -163,7 +160,7 @@ pub fn solve_temperature_with(
             lo = u;
         }
         if it >= max_iter || hi - lo < 1e-12 {
-            break;
+            break (u, g, h);
         }
         let newton = if dh > 0.0 { u - h / dh } else { f64::NAN };
         // Until both ends are known, Newton steps are limited to 4 (a factor e^4 in eta) so a
@@ -180,15 +177,13 @@ pub fn solve_temperature_with(
         } else {
             0.5 * (lo + hi)
         };
-    }
-    // The result is the last point evaluated (no extra pass over the batch).
-    let (u, g, h) = last;
+    };
     EStepSolution {
         eta: libm::exp(u) as f32,
         dual: g,
         kl: eps - h,
         iterations: it,
-        converged,
+        converged: h.abs() <= tol * eps,
     }
 }
 
