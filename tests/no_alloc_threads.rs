@@ -45,6 +45,7 @@ fn threaded_updates_allocate_nothing_on_any_thread() {
             action_penalization: true,
             target_tau: 0.005,
             critic_layer_norm: true,
+            tanh_mean: true,
             ..MpoConfig::REPORT
         },
         MpoConfig {

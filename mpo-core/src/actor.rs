@@ -18,6 +18,7 @@ use crate::linear::{accumulate, bias_grad_chunks, relu_backward, transpose, weig
 use crate::obs_norm::InputNorm;
 use crate::params::Params;
 use crate::rng::Rng;
+use crate::squash::MeanSquash;
 
 /// Policy network for `OBS` observations and `ACT` actions (`TRI = ACT (ACT + 1) / 2`).
 #[derive(Clone, Zeroable)]
@@ -39,6 +40,8 @@ pub struct Actor<
     pub mean: Linear<H2, ACT>,
     /// Cholesky head (packed lower triangle; diagonal before softplus).
     pub chol: Linear<H2, TRI>,
+    /// The mean's bound (unbounded unless set; never trained by gradients).
+    pub squash: MeanSquash<ACT>,
 }
 
 crate::impl_params_for_fields!(Actor<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize> {
@@ -47,6 +50,7 @@ crate::impl_params_for_fields!(Actor<const OBS: usize, const ACT: usize, const T
     l2: Linear<H1, H2>,
     mean: Linear<H2, ACT>,
     chol: Linear<H2, TRI>,
+    squash: MeanSquash<ACT>,
 });
 
 impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize>
@@ -55,10 +59,12 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     const SHAPE_OK: () = assert!(TRI == ACT * (ACT + 1) / 2, "TRI must be ACT(ACT+1)/2");
 
     /// Initialises in place: uniform fan-in layers, heads scaled down so the initial policy is
-    /// close to `N(0, init_std^2 I)` whatever the observation.
+    /// close to `N(0, init_std^2 I)` whatever the observation. The mean is unbounded (set
+    /// [`Self::squash`] to bound it).
     pub fn init(&mut self, rng: &mut Rng, init_std: f32, std_floor: f32) {
         let () = Self::SHAPE_OK;
         self.input.init();
+        self.squash.init(0.0);
         self.l1.init_uniform(rng);
         self.l2.init_uniform(rng);
         self.mean.init_uniform(rng);
@@ -80,7 +86,8 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 
     #[cfg(feature = "train")]
-    /// Raw head outputs for a batch, keeping the activations in `tape` for the backward pass.
+    /// Head outputs for a batch (the mean squashed, the Cholesky head raw), keeping the
+    /// activations in `tape` for the backward pass.
     pub fn forward<const B: usize>(
         &self,
         obs: &[[f32; OBS]; B],
@@ -90,7 +97,15 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     ) {
         self.trunk(obs, &mut tape.h1, &mut tape.h2);
         self.mean.forward(&tape.h2, mean);
+        self.squash.apply_rows(mean);
         self.chol.forward(&tape.h2, chol);
+    }
+
+    #[cfg(feature = "train")]
+    /// Turns gradients at the squashed means [`Self::forward`] returned into gradients at the
+    /// mean head's raw outputs, which [`Self::backprop`] and [`Self::backward`] take.
+    pub fn squash_backward(&self, mean: &[[f32; ACT]], d_mean: &mut [[f32; ACT]]) {
+        self.squash.backward_rows(mean, d_mean);
     }
 
     #[cfg(feature = "train")]
@@ -102,7 +117,8 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 
     #[cfg(feature = "train")]
-    /// Carries the head gradients `d_mean`, `d_chol` of one chunk down to the hidden layers:
+    /// Carries the head gradients `d_mean` (at the raw mean head: see
+    /// [`Self::squash_backward`]), `d_chol` of one chunk down to the hidden layers:
     /// fills `tape.d_h2` and `tape.d_h1` (gradients at the post-ReLU activations' inputs).
     /// `tape` holds the chunk's forward activations, `t` this network's transposed weights.
     pub fn backprop<const B: usize>(
@@ -126,8 +142,9 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     }
 
     #[cfg(feature = "train")]
-    /// Gradients of `sum_n d_mean[n] . mean[n] + d_chol[n] . chol[n]` with respect to every
-    /// parameter, written into `grad`, for one contiguous batch. `tape` must hold the
+    /// Gradients of `sum_n d_mean[n] . raw_mean[n] + d_chol[n] . chol[n]` with respect to
+    /// every parameter, written into `grad`, for one contiguous batch (`raw_mean`: the mean
+    /// head before the squash; [`Self::squash_backward`] converts). `tape` must hold the
     /// activations of the forward pass for the same `obs`; `t` is scratch.
     pub fn backward<const B: usize>(
         &self,
@@ -184,13 +201,14 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         parts
     }
 
-    /// Raw head outputs for one state (no tape: the inference path).
+    /// Head outputs for one state, as [`Self::forward`] (no tape: the inference path).
     pub fn forward_one(&self, obs: &[f32; OBS], mean: &mut [f32; ACT], chol: &mut [f32; TRI]) {
         let mut h1 = [[0f32; H1]; 1];
         let mut h2 = [[0f32; H2]; 1];
         let x = self.input.apply(obs);
         self.trunk(core::slice::from_ref(&x), &mut h1, &mut h2);
         self.mean.forward(&h2, core::slice::from_mut(mean));
+        self.squash.apply(mean);
         self.chol.forward(&h2, core::slice::from_mut(chol));
     }
 
@@ -201,6 +219,7 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
         let x = self.input.apply(obs);
         self.trunk(core::slice::from_ref(&x), &mut h1, &mut h2);
         self.mean.forward(&h2, core::slice::from_mut(action));
+        self.squash.apply(action);
     }
 
     /// The policy's distribution at one state.

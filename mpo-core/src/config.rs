@@ -78,6 +78,9 @@ pub struct MpoConfig {
     /// mean and standard deviation of the observations in the replay, and every batch is
     /// normalised with it before an update; 0 = off (the identity).
     pub obs_norm_interval: u32,
+    /// tonic's squashed mean: the policy's mean is `tanh` of its head, so it stays inside the
+    /// actuators' range `[-1, 1]` (`crate::squash`); off = the unbounded linear head.
+    pub tanh_mean: bool,
 }
 
 impl MpoConfig {
@@ -109,6 +112,7 @@ impl MpoConfig {
         target_tau: 0.0,
         critic_layer_norm: false,
         obs_norm_interval: 0,
+        tanh_mean: false,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -191,7 +195,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 27;
+pub const CONFIG_WORDS: usize = 28;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -227,6 +231,7 @@ impl MpoConfig {
             (self.estep_tol.to_bits() >> 32) as u32,
             self.critic_layer_norm as u32,
             self.obs_norm_interval,
+            self.tanh_mean as u32,
         ]
     }
 
@@ -268,6 +273,7 @@ impl MpoConfig {
             target_tau: f(w[23]),
             critic_layer_norm: flag(w[25], "critic_layer_norm")?,
             obs_norm_interval: w[26],
+            tanh_mean: flag(w[27], "tanh_mean")?,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -316,12 +322,16 @@ mod tests {
             estep_tol: 1e-3,
             critic_layer_norm: true,
             obs_norm_interval: 1000,
+            tanh_mean: true,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();
         assert_eq!(MpoConfig::from_words(&w), Ok(cfg));
         let mut bad = w;
         bad[3] = 2;
+        assert!(MpoConfig::from_words(&bad).is_err());
+        let mut bad = w;
+        bad[27] = 2;
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[4] = 2.0f32.to_bits(); // gamma out of range

@@ -57,6 +57,12 @@ pub fn write_actor_source<
     layer(out, "l2", &actor.l2)?;
     layer(out, "mean", &actor.mean)?;
     layer(out, "chol", &actor.chol)?;
+    writeln!(
+        out,
+        "    squash: mpo_core::squash::MeanSquash {{\n        bound:"
+    )?;
+    row_of(out, &actor.squash.bound, "        ")?;
+    writeln!(out, "    }},")?;
     writeln!(out, "}};")
 }
 

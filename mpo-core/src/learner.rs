@@ -408,6 +408,9 @@ impl<
         let mut rng = Rng::seed_from_u64(seed);
         let l = &mut self.live;
         l.actor.init(&mut rng, cfg.init_std, cfg.std_floor);
+        if cfg.tanh_mean {
+            l.actor.squash.init(1.0);
+        }
         l.critic.init(&mut rng);
         l.actor_m.fill_zero();
         l.actor_v.fill_zero();
@@ -759,6 +762,7 @@ impl<
                     &mut ch.d_chol[n],
                 );
             }
+            actor.squash_backward(&ch.mean, &mut ch.d_mean);
             actor.backprop(&mut ch.atape, &ch.d_mean, &ch.d_chol, at);
         });
         let (mut kl_mean, mut kl_cov) = ([0f32; ACT], [0f32; ACT]);

@@ -3,7 +3,8 @@
 //!
 //! The paper's concepts are the modules: [`gaussian`] (the policy's full-covariance
 //! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers and, optionally for the
-//! critic, a [`layer_norm`]; the policy's input goes through [`obs_norm`]),
+//! critic, a [`layer_norm`]; the policy's input goes through [`obs_norm`], its mean through
+//! [`squash`]),
 //! [`adam`], [`replay`] and [`rng`]; the algorithm's steps are [`evaluation`] (policy
 //! evaluation targets), [`estep`] and [`mstep`], composed by [`learner`], which spreads its
 //! work over threads through [`parallel`] with the same bits for any thread count. Every routine writes into buffers owned by the caller,
@@ -54,5 +55,6 @@ pub mod replay;
 pub mod rng;
 #[cfg(feature = "train")]
 pub mod selfcheck;
+pub mod squash;
 
 pub use bytemuck;

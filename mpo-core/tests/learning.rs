@@ -283,3 +283,32 @@ fn action_penalization_keeps_the_mean_inside_the_bounds() {
         "without the penalty the mean should drift outwards: {without}"
     );
 }
+
+/// tonic's squashed mean (`tanh_mean`): on the clipped bandit without action penalization,
+/// where the plain mean drifts out to about 1.47, the squashed mean stays inside (-1, 1) by
+/// construction and still goes to the bound, the best clipped action; and on the 4-D bandit
+/// with one optimum near the bound (-0.9, where `tanh` is steep to invert) it learns the
+/// optimum as the unbounded mean does.
+#[test]
+fn squashed_mean_stays_inside_the_bounds_and_learns_the_optimum() {
+    let cfg = MpoConfig {
+        tanh_mean: true,
+        ..bandit_cfg()
+    };
+    let l = train::<_, 1, 1, 1>(&mut ClippedBandit, cfg, 4, 3000, 200);
+    let mut a = [0f32; 1];
+    l.mean_action(&[1.0], &mut a);
+    eprintln!("clipped bandit, squashed mean: mean action {:.4}", a[0]);
+    assert!((0.9..1.0).contains(&a[0]), "squashed mean {}", a[0]);
+
+    let mut p = Bandit::<4> {
+        best: [0.5, -0.3, 0.2, -0.9],
+    };
+    let l = train::<_, 1, 4, 10>(&mut p, cfg, 2, 1500, 200);
+    let mut a = [0f32; 4];
+    l.mean_action(&[1.0], &mut a);
+    let ret = evaluate(&mut p, &|_| a, 1);
+    eprintln!("4-D bandit, squashed mean: {a:?}, return {ret:.4}");
+    assert!(ret >= 0.95, "return {ret}");
+    assert!(a.iter().all(|x| x.abs() < 1.0));
+}

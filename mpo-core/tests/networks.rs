@@ -119,8 +119,11 @@ fn linear_layer_weight_bias_and_input_gradients() {
     eprintln!("linear: worst relative error {worst:.2e}");
 }
 
-#[test]
-fn actor_gradients_for_every_parameter() {
+/// Checks the actor's backward pass against central differences; with `bound`, the mean of
+/// action 0 is squashed (`bound tanh(raw / bound)`, curved at this scale) and action 1 left
+/// unbounded, and the gradient at the squashed mean goes through `squash_backward` first, as
+/// in the learner.
+fn check_actor_gradients(bound: Option<f32>) {
     type Net = Actor<OBS, ACT, TRI, H1, H2>;
     let mut rng = Rng::seed_from_u64(2);
     let mut net = Net::zeroed();
@@ -128,6 +131,10 @@ fn actor_gradients_for_every_parameter() {
     // Undo the head down-scaling so every parameter has a sizeable effect.
     net.mean.init_uniform(&mut rng);
     net.chol.init_uniform(&mut rng);
+    if let Some(b) = bound {
+        net.squash.bound[0] = b;
+    }
+    let squash = net.squash.clone();
     let mut obs = [[0f32; OBS]; B];
     rng.fill_normal(obs.as_flattened_mut());
     let mut cm = [[0f32; ACT]; B];
@@ -135,7 +142,11 @@ fn actor_gradients_for_every_parameter() {
     rng.fill_normal(cm.as_flattened_mut());
     rng.fill_normal(cc.as_flattened_mut());
     let mut tape: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
+    // The bound is a constant of the objective (it is not trained): differences in it must
+    // find nothing, as its analytic gradient is zero.
     let f = |net: &Net, tape: &mut ActorTape<B, H1, H2>| -> (f64, u64) {
+        let mut net = net.clone();
+        net.squash = squash.clone();
         let mut m = [[0f32; ACT]; B];
         let mut c = [[0f32; TRI]; B];
         net.forward(&obs, tape, &mut m, &mut c);
@@ -157,15 +168,35 @@ fn actor_gradients_for_every_parameter() {
         )
     };
     f(&net, &mut tape);
+    let mut m = [[0f32; ACT]; B];
+    let mut c = [[0f32; TRI]; B];
+    net.forward(&obs, &mut tape, &mut m, &mut c);
+    if let Some(b) = bound {
+        // The squashed dimension is inside its bound and in tanh's curved part somewhere.
+        assert!(m.iter().all(|r| r[0].abs() < b));
+        assert!(m.iter().any(|r| r[0].abs() > 0.3 * b), "{m:?}");
+    }
+    let mut d = cm;
+    net.squash_backward(&m, &mut d);
     let mut grad = Net::zeroed();
     let mut t: Box<ActorTransposed<ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
-    net.backward(&obs, &mut tape, &cm, &cc, &mut t, &mut grad);
+    net.backward(&obs, &mut tape, &d, &cc, &mut t, &mut grad);
     let mut tape2: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();
     let worst = check_all(&mut net.clone(), &grad, &mut |p| f(p, &mut tape2), 1e-2);
     eprintln!(
-        "actor: {} parameters, worst relative error {worst:.2e}",
+        "actor (bound {bound:?}): {} parameters, worst relative error {worst:.2e}",
         net.len()
     );
+}
+
+#[test]
+fn actor_gradients_for_every_parameter() {
+    check_actor_gradients(None);
+}
+
+#[test]
+fn squashed_mean_actor_gradients_for_every_parameter() {
+    check_actor_gradients(Some(0.5));
 }
 
 /// A critic with random weights; with `layer_norm`, a gain and bias away from the identity so
@@ -366,6 +397,8 @@ fn actor_single_state_forward_equals_batch_bits() {
     let mut rng = Rng::seed_from_u64(4);
     let mut net = Net::zeroed();
     net.init(&mut rng, 0.5, 1e-3);
+    // One mean squashed (the other not), tightly enough to curve: both paths squash alike.
+    net.squash.bound[1] = 0.01;
     let mut obs = [[0f32; OBS]; B];
     rng.fill_normal(obs.as_flattened_mut());
     let mut tape: Box<ActorTape<B, H1, H2>> = bytemuck::zeroed_box();

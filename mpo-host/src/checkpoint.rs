@@ -40,7 +40,7 @@ use crate::tasks::Sizes;
 /// Format identifier in `meta.json`.
 pub const FORMAT: &str = "mpo-checkpoint";
 /// Format version; bumped on any incompatible change.
-pub const VERSION: u32 = 4;
+pub const VERSION: u32 = 5;
 /// The checkpoint's subdirectory in a run directory.
 pub const SUBDIR: &str = "checkpoint";
 /// Where a checkpoint can be found in a run directory after a crash, in order of preference
@@ -198,6 +198,7 @@ pub fn actor_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
         ("mean.b", vec![s.act]),
         ("chol.w", vec![h2, tri]),
         ("chol.b", vec![tri]),
+        ("squash.bound", vec![s.act]),
     ]
 }
 

@@ -113,6 +113,8 @@ pub struct MpoSettings {
     /// Observation normalisation: refit to the replay's observations every this many steps
     /// from the end of the warm-up; 0 = off.
     pub obs_norm_interval: u32,
+    /// tonic's squashed mean: the policy's mean is `tanh` of its head, inside `[-1, 1]`.
+    pub tanh_mean: bool,
 }
 
 impl MpoSettings {
@@ -145,6 +147,7 @@ impl MpoSettings {
         target_tau: 0.0,
         critic_layer_norm: false,
         obs_norm_interval: 0,
+        tanh_mean: false,
     };
 
     /// The learner's configuration (one `f64 -> f32` rounding per field).
@@ -182,6 +185,7 @@ impl MpoSettings {
             target_tau: self.target_tau as f32,
             critic_layer_norm: self.critic_layer_norm,
             obs_norm_interval: self.obs_norm_interval,
+            tanh_mean: self.tanh_mean,
             ..MpoConfig::REPORT
         }
     }

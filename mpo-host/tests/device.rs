@@ -254,8 +254,9 @@ fn malformed_and_out_of_order_commands_get_error_frames() {
         child.wait().unwrap().success(),
         "the device exits cleanly at end of input"
     );
-    // actor 1329 (its input normalisation: 3 x 5), critic 1377 (its 32-wide layer norm: 64)
-    let params = 1329 + 1377;
+    // actor 1330 (its input normalisation: 3 x 5; its mean's bound: 1), critic 1377 (its
+    // 32-wide layer norm: 64)
+    let params = 1330 + 1377;
     let mut rx = Box::new(Receiver::<20_000>::new(5, 1, params));
     let mut got = Vec::new();
     for b in bytes {

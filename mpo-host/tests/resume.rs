@@ -130,6 +130,8 @@ fn thread_count_does_not_change_a_bit() {
                 "mpo.critic_layer_norm=true",
                 "--set",
                 "mpo.obs_norm_interval=200",
+                "--set",
+                "mpo.tanh_mean=true",
             ][..],
         ),
     ] {
