@@ -352,9 +352,7 @@ fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
     while o0 + CHUNK_1 <= O {
         let mut acc: [f32; CHUNK_1] = init[o0..o0 + CHUNK_1].try_into().unwrap();
         for &i in nz {
-            // `min` proves the index in bounds (no check, which kept the accumulators in
-            // memory); it never changes an index, all of which are below `I`.
-            let i = (i as usize).min(I - 1);
+            let i = i as usize;
             let wr: &[f32; CHUNK_1] = w[i][o0..o0 + CHUNK_1].try_into().unwrap();
             let xi = x[i];
             for l in 0..CHUNK_1 {

@@ -48,11 +48,6 @@ impl<const ACT: usize> MeanSquash<ACT> {
         self.bound.fill(bound);
     }
 
-    /// True when no dimension is squashed.
-    pub fn is_identity(&self) -> bool {
-        self.bound.iter().all(|&b| b == 0.0)
-    }
-
     /// Squashes one raw mean in place. Bounds that are not `> 0` (0, or a NaN read from
     /// outside) leave their dimension unchanged.
     #[inline]
@@ -66,9 +61,6 @@ impl<const ACT: usize> MeanSquash<ACT> {
 
     /// Squashes rows in place (a batch's raw head outputs).
     pub fn apply_rows(&self, rows: &mut [[f32; ACT]]) {
-        if self.is_identity() {
-            return;
-        }
         for r in rows.iter_mut() {
             self.apply(r);
         }
@@ -77,15 +69,11 @@ impl<const ACT: usize> MeanSquash<ACT> {
     /// Turns gradients at the squashed means `mean` into gradients at the raw head outputs:
     /// `d raw = d mean (1 - (mean / b)^2)`, since `d/dx b tanh(x / b) = 1 - tanh^2(x / b)`.
     pub fn backward_rows(&self, mean: &[[f32; ACT]], d_mean: &mut [[f32; ACT]]) {
-        if self.is_identity() {
-            return;
-        }
         for (m, d) in mean.iter().zip(d_mean.iter_mut()) {
-            for k in 0..ACT {
-                let b = self.bound[k];
+            for ((d, &m), &b) in d.iter_mut().zip(m).zip(&self.bound) {
                 if b > 0.0 {
-                    let t = m[k] / b;
-                    d[k] *= 1.0 - t * t;
+                    let t = m / b;
+                    *d *= 1.0 - t * t;
                 }
             }
         }
@@ -99,7 +87,7 @@ mod tests {
     #[test]
     fn zero_bounds_are_the_identity_and_positive_ones_bound() {
         let mut s = MeanSquash::<3>::zeroed();
-        assert!(s.is_identity());
+        assert_eq!(s.bound, [0.0; 3]);
         let raw = [1e6f32, -0.0, f32::NAN];
         let mut m = raw;
         s.apply(&mut m);
