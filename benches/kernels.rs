@@ -71,6 +71,33 @@ fn measure_peak() -> f64 {
     (n * CH * L * 2) as f64 / secs / 1e9
 }
 
+/// The same peak measured with 16-wide (512-bit) fused multiply-adds, on a CPU that has
+/// AVX-512 (`None` elsewhere). The kernels are built for x86-64-v3 (8 wide); this line says what
+/// a 512-bit kernel could gain on this CPU at best (see docs/core.md, "x86-64-v4").
+fn measure_peak_512() -> Option<f64> {
+    if !std::arch::is_x86_feature_detected!("avx512f") {
+        return None;
+    }
+    // SAFETY: the CPU has AVX-512F (checked above), the only feature the function enables.
+    #[allow(unsafe_code)]
+    let secs = repetitions(1, || unsafe { fma_chains_512(black_box(2_000_000)) })[0];
+    Some((2_000_000usize * 16 * 16 * 2) as f64 / secs / 1e9)
+}
+
+/// 16 independent 16-wide chains of `x = fma(x, m, c)`, `n` times each.
+#[target_feature(enable = "avx512f")]
+fn fma_chains_512(n: usize) {
+    use std::arch::x86_64::{_mm512_fmadd_ps, _mm512_set1_ps};
+    let mut acc = [_mm512_set1_ps(1.0); 16];
+    let (m, c) = (_mm512_set1_ps(0.999_999), _mm512_set1_ps(1e-7));
+    for _ in 0..n {
+        for a in acc.iter_mut() {
+            *a = _mm512_fmadd_ps(*a, m, c);
+        }
+    }
+    black_box(&mut acc);
+}
+
 struct Row {
     name: String,
     secs: f64,
@@ -297,7 +324,18 @@ fn main() {
     let on = |g: &str| filter.is_empty() || g.contains(filter.as_str());
     let peak = measure_peak();
     let mut rows = Vec::new();
+    let wide = mpo_core::wide::detected();
     if on("layer") {
+        if wide {
+            // Both paths in one run: the 8-wide kernels first, then the default 512-bit one.
+            mpo_core::wide::set_enabled(false);
+            let from = rows.len();
+            layer_rows(&mut rows);
+            for r in &mut rows[from..] {
+                r.name.push_str(" (8-wide, AVX-512 off)");
+            }
+            mpo_core::wide::set_enabled(true);
+        }
         layer_rows(&mut rows);
     }
     let (single, batch) = (on("single"), on("actor"));
@@ -312,6 +350,12 @@ fn main() {
     }
 
     println!("measured single-core peak (8-wide fused multiply-add): {peak:.1} GFLOP/s");
+    if let Some(p512) = measure_peak_512() {
+        println!(
+            "measured 16-wide (AVX-512) peak on this CPU: {p512:.1} GFLOP/s ({:.2}x the 8-wide peak; the kernels are 8 wide)",
+            p512 / peak
+        );
+    }
     println!(
         "nominal single-core peak (2 x 256-bit FMA per cycle at ~3.65 GHz): {NOMINAL_PEAK} GFLOP/s"
     );
@@ -320,6 +364,14 @@ fn main() {
         "this instance: {} at {mhz:.0} MHz as reported by /proc/cpuinfo, so 32 FLOP/cycle x clock = {:.1} GFLOP/s",
         cpu_name(),
         32.0 * mhz / 1e3
+    );
+    println!(
+        "batch forward kernel: {}",
+        if mpo_core::wide::enabled() {
+            "512-bit (AVX-512F detected)"
+        } else {
+            "8-wide (no AVX-512)"
+        }
     );
     println!("load average (1 min) at the end: {}\n", load_average());
     let clock_peak = 32.0 * mhz / 1e3;

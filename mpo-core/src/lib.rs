@@ -19,8 +19,8 @@
 //! `TRI = ACT (ACT + 1) / 2` Cholesky entries, `H1`/`H2` hidden widths.
 #![no_std]
 #![deny(missing_docs)]
-// The one exception is `linear::mul_add`, which calls the FMA instruction when the build
-// enables it (a register-only intrinsic).
+// The exceptions: `linear::mul_add`, which calls the FMA instruction when the build enables it
+// (a register-only intrinsic), and `wide`, the 512-bit kernel chosen at run time.
 #![deny(unsafe_code)]
 #![allow(clippy::needless_range_loop)]
 
@@ -56,5 +56,7 @@ pub mod rng;
 #[cfg(feature = "train")]
 pub mod selfcheck;
 pub mod squash;
+#[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+pub mod wide;
 
 pub use bytemuck;

@@ -153,7 +153,7 @@ pub enum Start<'a, const O: usize> {
 impl<const O: usize> Start<'_, O> {
     /// The start values of sample `n` (`y` is the output, for [`Start::Y`]).
     #[inline(always)]
-    fn row<'a>(&'a self, y: &'a [[f32; O]], n: usize) -> &'a [f32; O] {
+    pub(crate) fn row<'a>(&'a self, y: &'a [[f32; O]], n: usize) -> &'a [f32; O] {
         match self {
             Self::Y => &y[n],
             Self::Row(b) => b,
@@ -190,8 +190,29 @@ pub fn kernel<const I: usize, const O: usize, const RELU: bool>(
     }
     // Output strips outermost: one strip of weights (I x 24 floats) is reused by every sample
     // tile while it is in cache. Strips of 24 outputs, then one of 16 and one of 8 for what is
-    // left, then the narrow kernel for fewer than 8.
+    // left, then the narrow kernel for fewer than 8. On a CPU with AVX-512 the 512-bit kernel
+    // does the outputs up to the last multiple of 16 first (same bits: `wide`).
+    #[allow(unused_mut)]
     let mut o0 = 0;
+    #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+    if crate::wide::enabled() {
+        // SAFETY: `enabled` is true only where the CPU and OS run AVX-512F code.
+        #[allow(unsafe_code)]
+        {
+            o0 = unsafe { crate::wide::kernel::<I, O, RELU>(x, w, start, y) };
+        }
+    }
+    kernel_from::<I, O, RELU>(x, w, start, y, o0);
+}
+
+/// The 8-wide batch kernel for outputs `o0..O` (all of [`kernel`] but its dispatch).
+pub(crate) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+    mut o0: usize,
+) {
     while o0 + 3 * LANES <= O {
         accumulate_strip::<I, O, 3, RELU>(x, w, start, y, o0);
         o0 += 3 * LANES;
@@ -277,7 +298,7 @@ fn accumulate_tile<
         for k in 0..K {
             for l in 0..LANES {
                 let v = acc[s][k][l];
-                ys[s][o0 + LANES * k + l] = if RELU { v.max(0.0) } else { v };
+                ys[s][o0 + LANES * k + l] = if RELU { relu_one(v) } else { v };
             }
         }
     }
@@ -312,7 +333,7 @@ fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
         for s in 0..tn {
             for l in 0..width {
                 let v = acc[s][l];
-                y[n0 + s][o0 + l] = if RELU { v.max(0.0) } else { v };
+                y[n0 + s][o0 + l] = if RELU { relu_one(v) } else { v };
             }
         }
         n0 += tn;
@@ -374,7 +395,7 @@ fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
         }
     }
     for o in 0..O {
-        y[o] = if RELU { init[o].max(0.0) } else { init[o] };
+        y[o] = if RELU { relu_one(init[o]) } else { init[o] };
     }
 }
 
@@ -550,10 +571,19 @@ pub fn bias_grad_chunks<const O: usize>(dy: &[&[[f32; O]]], gb: &mut [f32; O]) {
     }
 }
 
-/// `x = max(x, 0)` in place.
+/// The ReLU of one value, defined for every input: `v` if `v > 0`, else `+0` (so `-0.0` and
+/// NaN give `+0`). Spelled out rather than `f32::max`, which may return either zero for
+/// `max(-0.0, 0.0)`: every kernel path (8-wide, 512-bit, single state, software FMA) must
+/// agree bit for bit.
+#[inline(always)]
+pub fn relu_one(v: f32) -> f32 {
+    if v > 0.0 { v } else { 0.0 }
+}
+
+/// `x = max(x, 0)` in place ([`relu_one`]).
 pub fn relu<const N: usize>(x: &mut [[f32; N]]) {
     for v in x.as_flattened_mut() {
-        *v = v.max(0.0);
+        *v = relu_one(*v);
     }
 }
 
@@ -569,6 +599,7 @@ pub fn relu_backward<const N: usize>(out: &[[f32; N]], d: &mut [[f32; N]]) {
 
 #[cfg(all(test, feature = "train"))]
 mod tests {
+    extern crate std;
     use super::*;
 
     fn naive_forward<const I: usize, const O: usize>(l: &Linear<I, O>, x: &[f32; I]) -> [f64; O] {
@@ -670,6 +701,89 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The 512-bit kernel (`wide`, taken where the CPU has AVX-512F) equals the 8-wide one and
+    /// the reference order bit for bit: every start kind, with and without the fused ReLU,
+    /// pre-activations of both signed zeros, and sizes that leave 8-wide and narrow outputs
+    /// (118 = 2 x 48 + 16 + 6) and 8-, 4- and 1-sample tiles (13 rows). On a CPU without
+    /// AVX-512 both calls take the 8-wide path, which the test says on stderr.
+    #[test]
+    fn wide_kernel_equals_the_8_wide_kernel_bits() {
+        const I: usize = 21;
+        const O: usize = 118;
+        const B: usize = 13;
+        #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+        let wide = crate::wide::enabled();
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
+        let wide = false;
+        if !wide {
+            std::eprintln!(
+                "wide_kernel_equals_the_8_wide_kernel_bits: no AVX-512 on this CPU, only the 8-wide path ran"
+            );
+        }
+        let mut l = layer::<I, O>(31);
+        let mut x = [[0f32; I]; B];
+        Rng::seed_from_u64(32).fill_normal(x.as_flattened_mut());
+        // Row 0's inputs are all +0 and every third output's weights negative, so each of
+        // its products there is -0 and a start value of -0 stays -0 to the ReLU; the other
+        // outputs start at +0 or a random value.
+        x[0] = [0.0; I];
+        let mut rows = [[0f32; O]; B];
+        Rng::seed_from_u64(33).fill_normal(rows.as_flattened_mut());
+        for o in (0..O).step_by(3) {
+            for i in 0..I {
+                l.w[i][o] = -l.w[i][o].abs();
+            }
+            l.b[o] = -0.0;
+            rows[0][o] = -0.0;
+        }
+        for o in (1..O).step_by(3) {
+            l.b[o] = 0.0;
+        }
+        for kind in 0..3 {
+            let start = match kind {
+                0 => Start::Y,
+                1 => Start::Row(&l.b),
+                _ => Start::Rows(&rows),
+            };
+            for relu in [false, true] {
+                let (mut a, mut b) = (rows, rows);
+                if relu {
+                    kernel::<I, O, true>(&x, &l.w, start, &mut a);
+                    kernel_from::<I, O, true>(&x, &l.w, start, &mut b, 0);
+                } else {
+                    kernel::<I, O, false>(&x, &l.w, start, &mut a);
+                    kernel_from::<I, O, false>(&x, &l.w, start, &mut b, 0);
+                }
+                for n in 0..B {
+                    let mut r = match kind {
+                        1 => l.b,
+                        _ => rows[n],
+                    };
+                    for i in 0..I {
+                        for o in 0..O {
+                            r[o] = libm::fmaf(x[n][i], l.w[i][o], r[o]);
+                        }
+                    }
+                    for o in 0..O {
+                        let r = if relu { relu_one(r[o]) } else { r[o] };
+                        let at = format_args!("start {kind} relu {relu} n {n} o {o}");
+                        assert_eq!(a[n][o].to_bits(), b[n][o].to_bits(), "wide vs 8-wide, {at}");
+                        assert_eq!(b[n][o].to_bits(), r.to_bits(), "8-wide vs reference, {at}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn relu_one_gives_positive_zero_for_both_zeros_and_nan() {
+        assert_eq!(relu_one(-0.0).to_bits(), 0.0f32.to_bits());
+        assert_eq!(relu_one(0.0).to_bits(), 0.0f32.to_bits());
+        assert_eq!(relu_one(f32::NAN).to_bits(), 0.0f32.to_bits());
+        assert_eq!(relu_one(-2.0), 0.0);
+        assert_eq!(relu_one(1.5), 1.5);
     }
 
     #[test]
