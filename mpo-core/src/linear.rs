@@ -425,7 +425,29 @@ pub fn weight_grad_chunks<const I: usize, const O: usize>(
         assert_eq!(xc.len(), dc.len(), "weight_grad: batch sizes differ");
     }
     assert!(i0 + gw.len() <= I, "weight_grad: rows out of range");
+    #[allow(unused_mut)]
     let mut o0 = 0;
+    #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+    if crate::wide::enabled() {
+        // SAFETY: `enabled` is true only where the CPU and OS run AVX-512F code.
+        #[allow(unsafe_code)]
+        {
+            o0 = unsafe { crate::wide::weight_grad::<I, O>(x, dy, i0, gw) };
+        }
+    }
+    weight_grad_from(x, dy, i0, gw, o0);
+}
+
+#[cfg(feature = "train")]
+/// The 8-wide weight gradient for columns `o0..O` (all of [`weight_grad_chunks`] but its
+/// dispatch and checks).
+pub(crate) fn weight_grad_from<const I: usize, const O: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i0: usize,
+    gw: &mut [[f32; O]],
+    mut o0: usize,
+) {
     while o0 + 3 * LANES <= O {
         weight_grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
         o0 += 3 * LANES;
@@ -831,6 +853,46 @@ mod tests {
                     r = libm::fmaf(x[n][i], dy[n][o], r);
                 }
                 assert_eq!(whole[i][o].to_bits(), r.to_bits(), "order i {i} o {o}");
+            }
+        }
+    }
+
+    /// The 512-bit weight gradient (where the CPU has AVX-512F) equals the 8-wide one and the
+    /// reference order bit for bit, on uneven chunks and row ranges that leave 8-row, single-row,
+    /// 8-wide and narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21).
+    #[test]
+    fn wide_weight_gradient_equals_the_8_wide_bits() {
+        const I: usize = 21;
+        const O: usize = 118;
+        const B: usize = 13;
+        let mut rng = Rng::seed_from_u64(41);
+        let mut x = [[0f32; I]; B];
+        let mut dy = [[0f32; O]; B];
+        rng.fill_normal(x.as_flattened_mut());
+        rng.fill_normal(dy.as_flattened_mut());
+        let xs: [&[[f32; I]]; 3] = [&x[..6], &x[6..7], &x[7..]];
+        let ds: [&[[f32; O]]; 3] = [&dy[..6], &dy[6..7], &dy[7..]];
+        let (mut a, mut b) = ([[0f32; O]; I], [[0f32; O]; I]);
+        for (i0, i1) in [(0, 11), (11, I)] {
+            weight_grad_chunks(&xs, &ds, i0, &mut a[i0..i1]);
+            weight_grad_from(&xs, &ds, i0, &mut b[i0..i1], 0);
+        }
+        for i in 0..I {
+            for o in 0..O {
+                let mut r = 0f32;
+                for n in 0..B {
+                    r = libm::fmaf(x[n][i], dy[n][o], r);
+                }
+                assert_eq!(
+                    a[i][o].to_bits(),
+                    b[i][o].to_bits(),
+                    "wide vs 8-wide i {i} o {o}"
+                );
+                assert_eq!(
+                    b[i][o].to_bits(),
+                    r.to_bits(),
+                    "8-wide vs reference i {i} o {o}"
+                );
             }
         }
     }

@@ -14,9 +14,13 @@
 //! share a register changes, and lanes never mix. `linear`'s tests compare the two paths bit
 //! for bit on the CPU running them.
 //!
-//! Tiles: 8 samples x 48 outputs (24 accumulators, 3 weight registers and a broadcast: 28 of
-//! the 32 registers), then 32- and 16-wide strips; outputs left over (fewer than 16) and the
-//! narrow heads go to the 8-wide kernels.
+//! The weight gradient likewise ([`weight_grad`]): each entry summed from zero over the
+//! chunks in order and their samples in ascending order, one fused multiply-add each.
+//!
+//! Tiles: 8 samples (or, for the weight gradient, 8 input rows) x 48 outputs (24 accumulators,
+//! 3 weight or gradient registers and a broadcast: 28 of the 32 registers), then 32- and
+//! 16-wide strips; outputs left over (fewer than 16) and the narrow heads go to the 8-wide
+//! kernels.
 #![allow(unsafe_code)]
 
 use core::arch::x86_64::{
@@ -177,6 +181,95 @@ fn tile<const I: usize, const O: usize, const TN: usize, const K: usize, const R
                 acc[s][k]
             };
             unsafe { _mm512_storeu_ps(dst[W * k..].as_mut_ptr(), v) };
+        }
+    }
+}
+
+/// Columns `0 .. 16 * (O / 16)` of `linear::weight_grad_chunks` (rows `i0 .. i0 + gw.len()`);
+/// returns the first column it did not compute.
+///
+/// # Safety
+/// The CPU must have AVX-512F ([`detected`]).
+#[cfg(feature = "train")]
+#[target_feature(enable = "avx512f,fma")]
+pub unsafe fn weight_grad<const I: usize, const O: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i0: usize,
+    gw: &mut [[f32; O]],
+) -> usize {
+    let mut o0 = 0;
+    while o0 + 3 * W <= O {
+        grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
+        o0 += 3 * W;
+    }
+    if o0 + 2 * W <= O {
+        grad_strip::<I, O, 2>(x, dy, i0, gw, o0);
+        o0 += 2 * W;
+    }
+    if o0 + W <= O {
+        grad_strip::<I, O, 1>(x, dy, i0, gw, o0);
+        o0 += W;
+    }
+    o0
+}
+
+/// Columns `o0 .. o0 + 16 K` of the weight gradient: tiles of 8 input rows, then single rows.
+#[cfg(feature = "train")]
+#[inline(always)]
+fn grad_strip<const I: usize, const O: usize, const K: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i0: usize,
+    gw: &mut [[f32; O]],
+    o0: usize,
+) {
+    let rows = gw.len();
+    let mut r = 0;
+    while r + TILE_N <= rows {
+        grad_tile::<I, O, TILE_N, K>(x, dy, i0 + r, &mut gw[r..r + TILE_N], o0);
+        r += TILE_N;
+    }
+    while r < rows {
+        grad_tile::<I, O, 1, K>(x, dy, i0 + r, &mut gw[r..r + 1], o0);
+        r += 1;
+    }
+}
+
+/// `TI` input rows from `i` by `16 K` columns from `o0`, summed over every sample of every
+/// chunk in order, written into `gw` (`TI` rows).
+#[cfg(feature = "train")]
+#[inline(always)]
+fn grad_tile<const I: usize, const O: usize, const TI: usize, const K: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i: usize,
+    gw: &mut [[f32; O]],
+    o0: usize,
+) {
+    // SAFETY (every block below): the caller guarantees AVX-512F; each load or store reads or
+    // writes `16 K` floats inside a slice of exactly that length.
+    let mut acc = [[unsafe { _mm512_setzero_ps() }; K]; TI];
+    for (xc, dc) in x.iter().zip(dy) {
+        for (xn, dn) in xc.iter().zip(dc.iter()) {
+            let dr = &dn[o0..o0 + W * K];
+            let mut d = [unsafe { _mm512_setzero_ps() }; K];
+            for k in 0..K {
+                d[k] = unsafe { _mm512_loadu_ps(dr[W * k..].as_ptr()) };
+            }
+            let xs: &[f32; TI] = xn[i..i + TI].try_into().unwrap();
+            for t in 0..TI {
+                let xb = unsafe { _mm512_set1_ps(xs[t]) };
+                for k in 0..K {
+                    acc[t][k] = unsafe { _mm512_fmadd_ps(xb, d[k], acc[t][k]) };
+                }
+            }
+        }
+    }
+    for t in 0..TI {
+        let dst = &mut gw[t][o0..o0 + W * K];
+        for k in 0..K {
+            unsafe { _mm512_storeu_ps(dst[W * k..].as_mut_ptr(), acc[t][k]) };
         }
     }
 }
