@@ -689,11 +689,16 @@ mod tests {
 
     /// The single-state path skips zero inputs: with inputs of both signed zeros (half of
     /// each row, and whole rows), biases of +0 and -0, and outputs wider than one chunk, it
-    /// still equals the reference order and the batch kernel bit for bit.
+    /// still equals the reference order and the batch kernel bit for bit. Two widths: 70 (one
+    /// 64-wide chunk and a narrow rest) and 200 (three chunks and a rest of 8).
     #[test]
     fn single_state_skips_zero_inputs_exactly() {
+        single_state_skips_zero_inputs::<70>();
+        single_state_skips_zero_inputs::<200>();
+    }
+
+    fn single_state_skips_zero_inputs<const O: usize>() {
         const I: usize = 40;
-        const O: usize = 70; // one 64-wide chunk and a narrow rest
         const B: usize = 6;
         let mut rng = Rng::seed_from_u64(9);
         let mut x = [[0f32; I]; B];
@@ -718,8 +723,9 @@ mod tests {
                 l.forward(core::slice::from_ref(&x[n]), &mut y1);
                 for o in 0..O {
                     let (b, s, r) = (y[n][o].to_bits(), y1[0][o].to_bits(), bits[o].to_bits());
-                    assert_eq!(s, r, "single vs reference, bias {bias_zero:?}, n {n} o {o}");
-                    assert_eq!(b, s, "batch vs single, bias {bias_zero:?}, n {n} o {o}");
+                    let at = format_args!("O {O}, bias {bias_zero:?}, n {n} o {o}");
+                    assert_eq!(s, r, "single vs reference, {at}");
+                    assert_eq!(b, s, "batch vs single, {at}");
                 }
             }
         }
