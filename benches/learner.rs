@@ -109,10 +109,24 @@ fn bench<const OBS: usize, const ACT: usize, const TRI: usize, const M: usize, c
 
 /// `cargo bench --bench learner -- profile N`: `N` updates at walker size on one thread, and
 /// nothing else (for `perf record` or `valgrind --tool=callgrind`).
-fn profile(updates: usize) {
-    let cfg = MpoConfig {
-        mstep_iters: 1,
-        ..MpoConfig::REPORT
+/// `profile N` runs N updates of the first walker configuration; `profile N suite` runs the
+/// suite rows' learner settings instead (shared samples, action penalization at 0.1, eps_mean
+/// 0.01, actor clip 40, the report's 5 M-step iterations unless a count follows: `suite 1`).
+fn profile(updates: usize, suite: Option<u32>) {
+    let cfg = match suite {
+        None => MpoConfig {
+            mstep_iters: 1,
+            ..MpoConfig::REPORT
+        },
+        Some(iters) => MpoConfig {
+            mstep_iters: iters,
+            shared_samples: true,
+            action_penalization: true,
+            eps_penalty: 0.1,
+            eps_mean: 0.01,
+            actor_clip: 40.0,
+            ..MpoConfig::REPORT
+        },
     };
     let mut l: Box<L<24, 6, 21, 20, 20>> = bytemuck::zeroed_box();
     l.init(cfg, 0).unwrap();
@@ -127,7 +141,9 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     if let Some(i) = args.iter().position(|a| a == "profile") {
         let n = args.get(i + 1).and_then(|v| v.parse().ok()).unwrap_or(3);
-        return profile(n);
+        let suite = (args.get(i + 2).map(String::as_str) == Some("suite"))
+            .then(|| args.get(i + 3).and_then(|v| v.parse().ok()).unwrap_or(5));
+        return profile(n, suite);
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     let mhz = std::fs::read_to_string("/proc/cpuinfo")

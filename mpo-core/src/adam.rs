@@ -162,12 +162,32 @@ impl AdamState {
         let c2 = 1.0 / (1.0 - self.beta2_pow);
         for i in 0..p.len() {
             let gi = g[i] * scale;
-            m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * gi;
-            v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (gi * gi);
+            m[i] = flush_subnormal(cfg.beta1 * m[i] + (1.0 - cfg.beta1) * gi);
+            v[i] = flush_subnormal(cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (gi * gi));
             let m_hat = m[i] * c1;
             let v_hat = v[i] * c2;
             p[i] -= cfg.lr * m_hat / (libm::sqrtf(v_hat) + cfg.eps);
         }
+    }
+}
+
+/// `x` with a subnormal magnitude replaced by a zero of the same sign.
+///
+/// Why: the moments of a parameter whose gradient has stopped (a dead ReLU unit, a constant
+/// input) decay geometrically and spend tens of thousands of steps as subnormal numbers, and
+/// every arithmetic operation on a subnormal costs a microcode assist on x86 (about 100x a
+/// normal one). Measured: 90,078 of the 308,508 optimizer words of a walker-run checkpoint at
+/// 104k steps were subnormal, and Adam took most of the update's time. The CPU's flush-to-zero
+/// mode would change results between the host and the software-float firmware; this explicit
+/// flush is the same on every target. It changes no parameter in practice: a moment below
+/// 1.2e-38 moves a parameter by less than 1e-30 relative to `lr`, far below any non-zero
+/// parameter's last bit.
+#[inline(always)]
+pub fn flush_subnormal(x: f32) -> f32 {
+    if x.abs() < f32::MIN_POSITIVE {
+        0.0f32.copysign(x)
+    } else {
+        x
     }
 }
 
@@ -195,6 +215,63 @@ mod tests {
     use super::*;
     use crate::linear::Linear;
     use bytemuck::Zeroable;
+
+    /// A parameter whose gradient stops: its moments decay to zero without ever being stored
+    /// as subnormal numbers (which cost a microcode assist per operation on x86), and the
+    /// parameter's trajectory is bit for bit the one of the unflushed update written out here.
+    #[test]
+    fn stopped_gradients_leave_no_subnormal_moments_and_the_same_parameter() {
+        let cfg = AdamConfig::with_lr(1e-3);
+        let mut st = AdamState::default();
+        let (mut p, mut m, mut v) = ([0.3f32, -0.2], [0f32; 2], [0f32; 2]);
+        let (mut rp, mut rm, mut rv) = (p, m, v);
+        let mut subnormal_unflushed = 0;
+        for t in 0..20_000 {
+            let g = if t < 3 {
+                [1e-12f32, -1e-12]
+            } else {
+                [0.0, -0.0]
+            };
+            st.advance(&cfg);
+            st.apply(&cfg, &mut p, &g, &mut m, &mut v);
+            let (c1, c2) = (1.0 / (1.0 - st.beta1_pow), 1.0 / (1.0 - st.beta2_pow));
+            for i in 0..2 {
+                rm[i] = cfg.beta1 * rm[i] + (1.0 - cfg.beta1) * g[i];
+                rv[i] = cfg.beta2 * rv[i] + (1.0 - cfg.beta2) * (g[i] * g[i]);
+                rp[i] -= cfg.lr * (rm[i] * c1) / (libm::sqrtf(rv[i] * c2) + cfg.eps);
+                subnormal_unflushed +=
+                    rm[i].is_subnormal() as usize + rv[i].is_subnormal() as usize;
+                assert!(
+                    !m[i].is_subnormal() && !v[i].is_subnormal(),
+                    "step {t}: {m:?} {v:?}"
+                );
+                assert_eq!(p[i].to_bits(), rp[i].to_bits(), "step {t}");
+            }
+        }
+        assert!(
+            subnormal_unflushed > 1000,
+            "the case must produce subnormals unflushed"
+        );
+        assert_eq!(
+            m,
+            [0.0, -0.0],
+            "the first moments decayed past the subnormal range"
+        );
+        assert_eq!(
+            m[1].to_bits(),
+            (-0.0f32).to_bits(),
+            "the sign survives the flush"
+        );
+    }
+
+    #[test]
+    fn flush_subnormal_keeps_normals_and_signs() {
+        assert_eq!(flush_subnormal(f32::MIN_POSITIVE), f32::MIN_POSITIVE);
+        assert_eq!(flush_subnormal(-1.5), -1.5);
+        assert_eq!(flush_subnormal(1e-40).to_bits(), 0.0f32.to_bits());
+        assert_eq!(flush_subnormal(-1e-40).to_bits(), (-0.0f32).to_bits());
+        assert_eq!(flush_subnormal(0.0).to_bits(), 0.0f32.to_bits());
+    }
 
     #[test]
     fn first_step_moves_each_weight_by_lr_against_its_gradient_sign() {
