@@ -18,7 +18,7 @@
 //! [`weight_grad_chunks`] keeps a 4-input x 24-output tile and sums over samples in
 //! ascending order across a list of batch chunks, so the gradient of a batch held in chunks
 //! has the same bits as that of one contiguous batch. On a CPU with AVX-512F both hand the
-//! outputs up to the last multiple of 16 to [`crate::wide`]'s 512-bit forms (same order, so
+//! outputs up to the last multiple of 16 to the `wide` module's 512-bit forms (same order, so
 //! the same bits) and keep the rest.
 
 use bytemuck::Zeroable;
