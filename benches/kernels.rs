@@ -72,8 +72,8 @@ fn measure_peak() -> f64 {
 }
 
 /// The same peak measured with 16-wide (512-bit) fused multiply-adds, on a CPU that has
-/// AVX-512 (`None` elsewhere). The kernels are built for x86-64-v3 (8 wide); this line says what
-/// a 512-bit kernel could gain on this CPU at best (see docs/core.md, "x86-64-v4").
+/// AVX-512 (`None` elsewhere): the ceiling of `mpo_core::wide`'s kernels, as the 8-wide peak
+/// is of the others (docs/core.md, "512-bit kernels on an AVX-512 CPU").
 fn measure_peak_512() -> Option<f64> {
     if !std::arch::is_x86_feature_detected!("avx512f") {
         return None;
@@ -352,7 +352,7 @@ fn main() {
     println!("measured single-core peak (8-wide fused multiply-add): {peak:.1} GFLOP/s");
     if let Some(p512) = measure_peak_512() {
         println!(
-            "measured 16-wide (AVX-512) peak on this CPU: {p512:.1} GFLOP/s ({:.2}x the 8-wide peak; the kernels are 8 wide)",
+            "measured 16-wide (AVX-512) peak on this CPU: {p512:.1} GFLOP/s ({:.2}x the 8-wide peak)",
             p512 / peak
         );
     }
@@ -366,7 +366,7 @@ fn main() {
         32.0 * mhz / 1e3
     );
     println!(
-        "batch forward kernel: {}",
+        "batch forward and weight-gradient kernels: {}",
         if mpo_core::wide::enabled() {
             "512-bit (AVX-512F detected)"
         } else {

@@ -188,7 +188,8 @@ fn main() {
     bench::<24, 6, 21, 20, 20>("walker 24/6, shared samples", shared, &one, &two);
     bench::<24, 6, 21, 20, 20>("walker 24/6, Retrace 5", retrace, &one, &two);
     if mpo_core::wide::enabled() {
-        // The same configurations with the 512-bit forward kernel turned off (same bits).
+        // The same configurations with the 512-bit kernels (forward and weight gradient)
+        // turned off: the same bits, the 8-wide speed.
         mpo_core::wide::set_enabled(false);
         bench::<5, 1, 1, 20, 20>("cartpole 5/1, 8-wide kernels", base, &one, &two);
         bench::<24, 6, 21, 20, 20>(

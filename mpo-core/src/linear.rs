@@ -867,7 +867,8 @@ mod tests {
 
     /// The 512-bit weight gradient (where the CPU has AVX-512F) equals the 8-wide one and the
     /// reference order bit for bit, on uneven chunks and row ranges that leave 8-row, single-row,
-    /// 8-wide and narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21).
+    /// 8-wide and narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21). On a
+    /// CPU without AVX-512 both calls take the 8-wide path, which the test says on stderr.
     #[test]
     fn wide_weight_gradient_equals_the_8_wide_bits() {
         const I: usize = 21;
@@ -880,6 +881,12 @@ mod tests {
         rng.fill_normal(dy.as_flattened_mut());
         let xs: [&[[f32; I]]; 3] = [&x[..6], &x[6..7], &x[7..]];
         let ds: [&[[f32; O]]; 3] = [&dy[..6], &dy[6..7], &dy[7..]];
+        #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+        if !crate::wide::enabled() {
+            std::eprintln!(
+                "wide_weight_gradient_equals_the_8_wide_bits: no AVX-512 on this CPU, only the 8-wide path ran"
+            );
+        }
         let (mut a, mut b) = ([[0f32; O]; I], [[0f32; O]; I]);
         for (i0, i1) in [(0, 11), (11, I)] {
             weight_grad_chunks(&xs, &ds, i0, &mut a[i0..i1]);

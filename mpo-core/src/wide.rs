@@ -1,9 +1,10 @@
-//! The batch forward kernel in 512-bit registers, for x86-64 CPUs that have AVX-512F.
+//! The batch forward and weight-gradient kernels in 512-bit registers, for x86-64 CPUs that
+//! have AVX-512F.
 //!
 //! The workspace builds for x86-64-v3 (AVX2), so [`crate::linear`]'s kernels are 8 floats wide.
 //! On a CPU with two 512-bit FMA pipes (Intel Xeon since Skylake-SP) a 16-wide fused
 //! multiply-add does twice the work per instruction: `cargo bench --bench kernels` measures
-//! both peaks (1.85x on the Sapphire Rapids host of 2026-12-02). This module is that kernel,
+//! both peaks (1.85x on the Xeon host of 2026-12-02). This module holds those kernels,
 //! chosen at run time ([`enabled`]), so one binary runs everywhere.
 //!
 //! **Same bits.** Every output is computed exactly as in [`crate::linear::kernel`]: its start
