@@ -18,8 +18,9 @@ use crate::parallel::Parallel;
 use crate::replay::{BatchMode, Replay, SampleError, Transition};
 use crate::rng::Rng;
 
-/// When to act randomly and when to learn, in environment steps.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Zeroable)]
+/// When to act randomly and when to learn, in environment steps, and how the exploration
+/// noise runs in time.
+#[derive(Clone, Copy, Debug, PartialEq, Zeroable)]
 pub struct AgentSchedule {
     /// Steps with uniformly random actions in [-1, 1] before the policy acts and learning
     /// starts.
@@ -31,6 +32,16 @@ pub struct AgentSchedule {
     /// Steps of an n-step transition (1 = single transitions; ignored with Retrace, whose
     /// sequence length is the learner's `sequence_len`).
     pub n_step: u32,
+    /// Correlation `beta` in `[0, 1)` of the exploration noise between consecutive steps of
+    /// an episode: the standard-normal draws `z` of `action = mu + L z` follow
+    /// `z_t = beta z_(t-1) + sqrt(1 - beta^2) xi_t` (an AR(1) process, each `z_t` still
+    /// standard normal), restarted with `z_1 = xi_1` at every episode. 0 = independent draws
+    /// (the default). White noise of std 0.5 cannot pump a pendulum's energy: its torque
+    /// changes sign every few steps; correlated noise pushes one way for about
+    /// `1 / (1 - beta)` steps at the same marginal spread (the colored-noise argument of
+    /// Eberhard et al. 2023). The stored log-density is the marginal one, not the conditional
+    /// one, so Retrace (which uses it) refuses correlated noise.
+    pub noise_corr: f32,
 }
 
 /// Why a step of learning failed.
@@ -83,6 +94,10 @@ pub struct Agent<
     pub env_steps: u64,
     /// The schedule.
     pub schedule: AgentSchedule,
+    /// The last standard-normal exploration draw of this episode (for correlated noise).
+    pub noise: [f32; ACT],
+    /// True once [`Agent::noise`] holds a draw of the current episode.
+    pub noise_live: bool,
 }
 
 impl<
@@ -116,6 +131,18 @@ impl<
                 requirement: "at least 1",
             });
         }
+        if !(schedule.noise_corr >= 0.0 && schedule.noise_corr < 1.0) {
+            return Err(ConfigError {
+                field: "noise_corr",
+                requirement: "in [0, 1)",
+            });
+        }
+        if schedule.noise_corr > 0.0 && cfg.sequence_len > 1 {
+            return Err(ConfigError {
+                field: "noise_corr",
+                requirement: "0 with Retrace (it needs each action's behaviour density)",
+            });
+        }
         self.learner.init(cfg, seed)?;
         self.replay.clear();
         let mut root = Rng::seed_from_u64(stream_seed);
@@ -123,6 +150,8 @@ impl<
         self.sampler = root.split().state();
         self.env_steps = 0;
         self.schedule = schedule;
+        self.noise = [0.0; ACT];
+        self.noise_live = false;
         Ok(())
     }
 
@@ -132,34 +161,48 @@ impl<
     }
 
     /// The action for state `obs` and its log-density under the behaviour policy: uniform in
-    /// [-1, 1] during the warm-up, else a sample of the online policy.
+    /// [-1, 1] during the warm-up, else a sample of the online policy (`mu + L z` with `z`
+    /// from [`Agent::draw_noise`]; for correlated noise the density is the marginal one).
     pub fn act(&mut self, obs: &[f32; OBS], action: &mut [f32; ACT]) -> f32 {
-        let mut rng = Rng::from_state(self.collector);
-        let log_prob = if self.in_warmup() {
+        if self.in_warmup() {
+            let mut rng = Rng::from_state(self.collector);
             for a in action.iter_mut() {
                 *a = rng.uniform_range(-1.0, 1.0);
             }
-            -(ACT as f32) * core::f32::consts::LN_2
-        } else {
-            self.learner.sample_action(obs, &mut rng, action)
-        };
-        self.collector = rng.state();
-        log_prob
+            self.collector = rng.state();
+            return -(ACT as f32) * core::f32::consts::LN_2;
+        }
+        let mut z = [0f32; ACT];
+        self.draw_noise(&mut z);
+        self.learner.sample_action_from(obs, &z, action)
     }
 
-    /// The standard-normal draws [`Agent::act`] would turn into a sample of the policy after
-    /// the warm-up (`action = mu + L z`): for a policy evaluated elsewhere (a controller
-    /// process) with the same bits.
+    /// The standard-normal draws [`Agent::act`] turns into a sample of the policy after the
+    /// warm-up (`action = mu + L z`): independent draws from the collector's stream, or with
+    /// `noise_corr > 0` their AR(1) combination with the episode's previous draw. Also for a
+    /// policy evaluated elsewhere (a controller process) with the same bits.
     pub fn draw_noise(&mut self, z: &mut [f32; ACT]) {
         let mut rng = Rng::from_state(self.collector);
         rng.fill_normal(z);
         self.collector = rng.state();
+        let beta = self.schedule.noise_corr;
+        if beta > 0.0 {
+            if self.noise_live {
+                let fresh = libm::sqrtf(1.0 - beta * beta);
+                for (x, p) in z.iter_mut().zip(&self.noise) {
+                    *x = beta * p + fresh * *x;
+                }
+            }
+            self.noise = *z;
+            self.noise_live = true;
+        }
     }
 
     /// Marks the start of an episode (later transitions never join a sequence with earlier
     /// ones).
     pub fn begin_episode(&mut self) {
         self.replay.begin_episode();
+        self.noise_live = false;
     }
 
     /// How the replay's batches are drawn for this configuration.

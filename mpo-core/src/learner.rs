@@ -447,6 +447,19 @@ impl<
         pi.log_prob(action)
     }
 
+    /// The online policy's action `mu + L z` for given standard-normal draws `z` (the same
+    /// bits as [`Learner::sample_action`] when `z` are its draws) and its log-density.
+    pub fn sample_action_from(
+        &self,
+        obs: &[f32; OBS],
+        z: &[f32; ACT],
+        action: &mut [f32; ACT],
+    ) -> f32 {
+        let pi = self.live.actor.distribution(obs, self.cfg.std_floor);
+        pi.transform(z, action);
+        pi.log_prob(action)
+    }
+
     /// The online policy's mean action (evaluation and deployment).
     pub fn mean_action(&self, obs: &[f32; OBS], action: &mut [f32; ACT]) {
         self.live.actor.mean_action(obs, action);

@@ -265,6 +265,7 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
         );
     }
     let (task, net) = (settings.task.clone(), settings.net.clone());
+    let req_noise_corr = settings.schedule.noise_corr;
     // `--render-every N`: a machine that cannot render says so before training starts.
     let render = match args.render_every {
         Some(n) => {
@@ -295,6 +296,12 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
                 return Err(SettingsError::Invalid(
                     "--device runs start fresh: a device's replay and optimiser state are not checkpointed, so they cannot be resumed".into(),
                 )
+                .into());
+            }
+            Some(_) if req_noise_corr != 0.0 => {
+                return Err(SettingsError::Invalid(format!(
+                    "schedule.noise_corr = {req_noise_corr} cannot run on a device: its START frame carries no noise correlation (set it to 0 with --device)"
+                ))
                 .into());
             }
             Some(_) if !(args.device_timeout.is_finite() && args.device_timeout > 0.0) => {

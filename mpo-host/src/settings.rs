@@ -60,6 +60,13 @@ pub struct Schedule {
     /// `mpo.action_penalization`; this scalarised form is kept for comparison
     /// (docs/training.md). Evaluation returns are always the environment's rewards.
     pub action_penalty: f64,
+    /// Correlation in `[0, 1)` of the exploration noise between consecutive steps of an
+    /// episode (`mpo_core::agent::AgentSchedule::noise_corr`): 0 = independent draws (every
+    /// row's default); 0.9 keeps a push going for about 10 steps. Not with Retrace, and not
+    /// on a device (its START frame has no field for it). Missing in a checkpoint or file
+    /// written before it existed: 0, which is what those runs did (so they resume as before).
+    #[serde(default)]
+    pub noise_corr: f64,
 }
 
 /// How the critic's targets are formed.
@@ -382,6 +389,15 @@ impl Settings {
         }
         if !(s.action_penalty.is_finite() && s.action_penalty >= 0.0) {
             return bad("schedule.action_penalty must be a finite number >= 0".into());
+        }
+        if !(s.noise_corr >= 0.0 && s.noise_corr < 1.0) {
+            return bad(format!(
+                "schedule.noise_corr = {} must be in [0, 1) (0 = independent exploration noise)",
+                s.noise_corr
+            ));
+        }
+        if s.noise_corr > 0.0 && self.mpo.policy_evaluation == PolicyEvaluation::Retrace {
+            return bad("schedule.noise_corr must be 0 with mpo.policy_evaluation = \"retrace\": Retrace weighs each replayed action by its behaviour density, which correlated noise does not store".into());
         }
         if s.eval_episodes == 0 {
             return bad("schedule.eval_episodes must be at least 1".into());

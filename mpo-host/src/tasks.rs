@@ -164,6 +164,7 @@ const CARTPOLE_SCHEDULE: Schedule = Schedule {
     eval_interval: 5_000,
     eval_episodes: 10,
     action_penalty: 0.0,
+    noise_corr: 0.0,
 };
 
 /// The microcontroller row (`net = "mcu"`, `mpo train --device`): sizes that fit the whole
@@ -175,6 +176,7 @@ const MCU_SCHEDULE: Schedule = Schedule {
     eval_interval: 5_000,
     eval_episodes: 10,
     action_penalty: 0.0,
+    noise_corr: 0.0,
 };
 
 /// Settings for the harder tasks (docs/training.md: the tuning log and ablations).
@@ -205,6 +207,7 @@ const SUITE_SCHEDULE: Schedule = Schedule {
     eval_interval: 20_000,
     eval_episodes: 10,
     action_penalty: 0.0,
+    noise_corr: 0.0,
 };
 
 table! {
@@ -212,7 +215,7 @@ table! {
         steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
     "cartpole-balance" / "tiny": [5, 1, 1; actor (32, 32); critic (32, 32); batch 64 in 2; seq 4; 10, 10; replay 50_000],
         steps 4_000,
-        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0 },
+        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0, noise_corr: 0.0 },
         CARTPOLE_MPO;
     "cartpole-balance" / "mcu": [5, 1, 1; actor (32, 32); critic (32, 32); batch 32 in 1; seq 1; 8, 8; replay 1_000],
         steps 50_000, MCU_SCHEDULE, CARTPOLE_MPO;

@@ -621,6 +621,7 @@ pub fn agent_schedule(settings: &Settings) -> AgentSchedule {
             crate::settings::PolicyEvaluation::NStep => settings.mpo.n_step,
             _ => 1,
         },
+        noise_corr: s.noise_corr as f32,
     }
 }
 

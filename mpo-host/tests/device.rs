@@ -192,6 +192,16 @@ fn a_dying_device_is_a_clear_error_and_the_last_checkpoint_stays() {
         .output()
         .unwrap();
     assert!(err_text(&out).contains("cannot be resumed"));
+    // Correlated noise has no field in START: refused before the device is started.
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args(["train", "--net", "mcu", "--no-progress", "--out"])
+        .arg(d.join("run4"))
+        .args(["--set", "schedule.noise_corr=0.5"])
+        .args(["--device", "/nonexistent/trainer"])
+        .output()
+        .unwrap();
+    let e = err_text(&out);
+    assert!(e.contains("cannot run on a device"), "{e}");
     // A device for other sizes: the hopper row against the cartpole trainer.
     let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
         .args([

@@ -132,6 +132,28 @@ fn bad_configuration_is_reported() {
     assert!(e.contains("unknown setting `mpo.actr_lr`"), "{e}");
     let e = err_text(&tiny(&d.join("c"), 1000, &["--set", "mpo.gamma=2"]));
     assert!(e.contains("gamma"), "{e}");
+    let e = err_text(&tiny(
+        &d.join("n"),
+        1000,
+        &["--set", "schedule.noise_corr=1.0"],
+    ));
+    assert!(
+        e.contains("schedule.noise_corr = 1 must be in [0, 1)"),
+        "{e}"
+    );
+    let retrace_noise = [
+        "--set",
+        "schedule.noise_corr=0.5",
+        "--set",
+        "mpo.policy_evaluation=\"retrace\"",
+        "--set",
+        "mpo.n_step=3",
+    ];
+    let e = err_text(&tiny(&d.join("r"), 1000, &retrace_noise));
+    assert!(
+        e.contains("noise_corr must be 0 with mpo.policy_evaluation"),
+        "{e}"
+    );
     let cfg = d.join("bad.toml");
     std::fs::write(&cfg, "seed = \"zero\"\n").unwrap();
     let e = err_text(&tiny(

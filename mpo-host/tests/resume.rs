@@ -110,11 +110,12 @@ fn ctrl_c_checkpoints_at_an_episode_boundary_and_resume_matches() {
 
 /// The learner's thread count changes nothing: one, two and three threads give the same
 /// parameters and metrics, for TD and for Retrace with action penalization, Polyak targets,
-/// the layer-normalised critic and observation normalisation; and a run
-/// resumed on a different number of threads still matches.
+/// the layer-normalised critic and observation normalisation, and for correlated exploration
+/// noise; and a run resumed on a different number of threads still matches.
 #[test]
 fn thread_count_does_not_change_a_bit() {
     let d = scratch("threads");
+    let mut first = vec![];
     for (name, extra) in [
         ("td", &[][..]),
         (
@@ -134,6 +135,7 @@ fn thread_count_does_not_change_a_bit() {
                 "mpo.tanh_mean=true",
             ][..],
         ),
+        ("noise", &["--set", "schedule.noise_corr=0.9"][..]),
     ] {
         let mut sums = vec![];
         for threads in ["1", "2", "3"] {
@@ -145,25 +147,38 @@ fn thread_count_does_not_change_a_bit() {
         }
         assert_eq!(sums[0], sums[1], "{name}: 1 vs 2 threads");
         assert_eq!(sums[0], sums[2], "{name}: 1 vs 3 threads");
+        first.push(sums.swap_remove(0).0);
     }
-    // 1000 steps on 3 threads, then resumed on 1.
-    let dir = d.join("td-switch");
-    ok_json(&tiny(&dir, 1000, &["--threads", "3"]));
-    let resumed = ok_json(&mpo(&[
-        "train",
-        "--no-progress",
-        "--resume",
-        dir.to_str().unwrap(),
-        "--steps",
-        "3000",
-        "--threads",
-        "1",
-    ]));
-    let whole: serde_json::Value = serde_json::from_str(
-        std::fs::read_to_string(d.join("td-1/checkpoint/meta.json"))
-            .unwrap()
-            .as_str(),
-    )
-    .unwrap();
-    assert_eq!(resumed["params_sha256"], whole["params_sha256"]);
+    assert_ne!(
+        first[0], first[2],
+        "correlated noise left the run unchanged"
+    );
+    // 1000 steps on 3 threads, then resumed on 1 (with correlated noise too: the noise
+    // restarts at the episode boundary a checkpoint is taken at, so nothing of it is lost).
+    for (name, extra) in [
+        ("td", &[][..]),
+        ("noise", &["--set", "schedule.noise_corr=0.9"][..]),
+    ] {
+        let dir = d.join(format!("{name}-switch"));
+        let mut args = extra.to_vec();
+        args.extend_from_slice(&["--threads", "3"]);
+        ok_json(&tiny(&dir, 1000, &args));
+        let resumed = ok_json(&mpo(&[
+            "train",
+            "--no-progress",
+            "--resume",
+            dir.to_str().unwrap(),
+            "--steps",
+            "3000",
+            "--threads",
+            "1",
+        ]));
+        let whole: serde_json::Value = serde_json::from_str(
+            std::fs::read_to_string(d.join(format!("{name}-1/checkpoint/meta.json")))
+                .unwrap()
+                .as_str(),
+        )
+        .unwrap();
+        assert_eq!(resumed["params_sha256"], whole["params_sha256"], "{name}");
+    }
 }

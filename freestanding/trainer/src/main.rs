@@ -181,6 +181,8 @@ impl Device {
             update_interval: u64_at(p, 8),
             updates_per_interval: u64_at(p, 16),
             n_step: u32_at(p, 24),
+            // START carries no noise correlation: the host refuses one for a device.
+            noise_corr: 0.0,
         };
         let seed = u32_at(p, 28) as u64;
         let mut w = [0u32; CONFIG_WORDS];
