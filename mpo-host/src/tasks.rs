@@ -255,8 +255,6 @@ table! {
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
     "cheetah-run" / "small": [17, 6, 21; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
-    "walker-walk" / "wide-critic": [24, 6, 21; actor (256, 256); critic (512, 512); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
-        steps 500_000, SUITE_SCHEDULE, SUITE_MPO;
 }
 
 /// The default network variant.
