@@ -733,8 +733,8 @@ pub fn eval(args: &EvalArgs) -> Result<EvalSummary, Error> {
 /// `mpo tasks`: one line per task-table row (every Control Suite task has at least one).
 pub fn tasks_listing() -> String {
     let mut s = format!(
-        "{:<18} {:>3} {:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {:<12} {:>9}\n",
-        "task", "obs", "act", "net", "actor", "critic", "B", "M", "N", "evaluation", "steps"
+        "{:<18} {:>3} {:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {:<12} {:>5} {:>9}\n",
+        "task", "obs", "act", "net", "actor", "critic", "B", "M", "N", "evaluation", "noise", "steps"
     );
     for &name in sim_bridge::TASKS {
         let (obs, act) = sim_bridge::task_spec(name)
@@ -754,13 +754,14 @@ pub fn tasks_listing() -> String {
                 settings::PolicyEvaluation::Retrace => format!("retrace {}", r.mpo.n_step),
             };
             s.push_str(&format!(
-                "{name:<18} {obs:>3} {act:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {eval:<12} {:>9}\n",
+                "{name:<18} {obs:>3} {act:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {eval:<12} {:>5} {:>9}\n",
                 r.net,
                 format!("{}-{}", z.actor[0], z.actor[1]),
                 format!("{}-{}", z.critic[0], z.critic[1]),
                 z.batch,
                 z.m,
                 z.n,
+                r.schedule.noise_corr,
                 r.steps
             ));
         }
