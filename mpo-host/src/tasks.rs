@@ -219,6 +219,14 @@ const PENDULUM_SCHEDULE: Schedule = Schedule {
     ..SUITE_SCHEDULE
 };
 
+/// hopper-stand's schedule: the same correlated noise. Seed 0 at 100k steps: 377.8 +- 11.6
+/// (every evaluation episode stands) against 114.9 +- 140.8 with independent draws, 534 at
+/// 120k (docs/training.md). hopper-hop keeps independent draws: not yet measured with it.
+const HOPPER_STAND_SCHEDULE: Schedule = Schedule {
+    noise_corr: 0.95,
+    ..SUITE_SCHEDULE
+};
+
 table! {
     "cartpole-balance" / "default": [5, 1, 1; actor (64, 64); critic (64, 64); batch 128 in 2; seq 8; 20, 20; replay 100_000],
         steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
@@ -235,7 +243,7 @@ table! {
     "acrobot-swingup" / "default": [6, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
     "hopper-stand" / "default": [15, 4, 10; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
-        steps 1_000_000, SUITE_SCHEDULE, HOPPER_MPO;
+        steps 1_000_000, HOPPER_STAND_SCHEDULE, HOPPER_MPO;
     "hopper-hop" / "default": [15, 4, 10; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, HOPPER_MPO;
     "walker-stand" / "default": [24, 6, 21; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
@@ -253,7 +261,7 @@ table! {
     "acrobot-swingup" / "small": [6, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
     "hopper-stand" / "small": [15, 4, 10; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
-        steps 1_000_000, SUITE_SCHEDULE, HOPPER_MPO;
+        steps 1_000_000, HOPPER_STAND_SCHEDULE, HOPPER_MPO;
     "hopper-hop" / "small": [15, 4, 10; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, HOPPER_MPO;
     "walker-stand" / "small": [24, 6, 21; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
