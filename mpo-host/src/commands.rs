@@ -734,7 +734,18 @@ pub fn eval(args: &EvalArgs) -> Result<EvalSummary, Error> {
 pub fn tasks_listing() -> String {
     let mut s = format!(
         "{:<18} {:>3} {:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {:<12} {:>5} {:>9}\n",
-        "task", "obs", "act", "net", "actor", "critic", "B", "M", "N", "evaluation", "noise", "steps"
+        "task",
+        "obs",
+        "act",
+        "net",
+        "actor",
+        "critic",
+        "B",
+        "M",
+        "N",
+        "evaluation",
+        "noise",
+        "steps"
     );
     for &name in sim_bridge::TASKS {
         let (obs, act) = sim_bridge::task_spec(name)
