@@ -220,8 +220,9 @@ const PENDULUM_SCHEDULE: Schedule = Schedule {
 };
 
 /// hopper-stand's schedule: the same correlated noise. Seed 0 at 100k steps: 377.8 +- 11.6
-/// (every evaluation episode stands) against 114.9 +- 140.8 with independent draws, 534 at
-/// 120k (docs/training.md). hopper-hop keeps independent draws: not yet measured with it.
+/// (every evaluation episode stands) against 114.9 +- 140.8 with independent draws, 877.9 at
+/// 160k; seeds 1 and 2 slower (218 and 154 at 180k; docs/training.md). hopper-hop keeps
+/// independent draws: not yet measured with it.
 const HOPPER_STAND_SCHEDULE: Schedule = Schedule {
     noise_corr: 0.95,
     ..SUITE_SCHEDULE
