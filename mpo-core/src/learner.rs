@@ -442,13 +442,13 @@ impl<
     /// A sampled action from the online policy and its log-probability (the behaviour policy
     /// while collecting experience).
     pub fn sample_action(&self, obs: &[f32; OBS], rng: &mut Rng, action: &mut [f32; ACT]) -> f32 {
-        let pi = self.live.actor.distribution(obs, self.cfg.std_floor);
-        pi.sample(rng, action);
-        pi.log_prob(action)
+        let mut z = [0f32; ACT];
+        rng.fill_normal(&mut z);
+        self.sample_action_from(obs, &z, action)
     }
 
-    /// The online policy's action `mu + L z` for given standard-normal draws `z` (the same
-    /// bits as [`Learner::sample_action`] when `z` are its draws) and its log-density.
+    /// The online policy's action `mu + L z` for given standard-normal draws `z` and its
+    /// log-density (what [`Learner::sample_action`] does with its own draws).
     pub fn sample_action_from(
         &self,
         obs: &[f32; OBS],
