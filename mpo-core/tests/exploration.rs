@@ -1,9 +1,11 @@
 //! Correlated exploration noise (`AgentSchedule::noise_corr`): independent draws when it is 0
 //! (the bits of `Learner::sample_action`), an AR(1) process with standard-normal marginals and
 //! lag-one correlation `beta` otherwise, restarted at every episode, and refused where it would
-//! be wrong (out of range, or with Retrace).
+//! be wrong (out of range, or with Retrace). Pink noise (`AgentSchedule::noise_pink`): standard
+//! normal draws whose correlation at every lag is that of Voss's generator, computed here by
+//! counting the rows two steps share.
 
-use mpo_core::agent::{Agent, AgentSchedule};
+use mpo_core::agent::{Agent, AgentSchedule, PINK_OCTAVES};
 use mpo_core::config::MpoConfig;
 use mpo_core::rng::Rng;
 
@@ -16,6 +18,14 @@ const CAP: usize = 64;
 type A = Agent<OBS, ACT, TRI, H, H, H, H, 4, 1, 4, 4, 4, CAP>;
 
 fn agent(noise_corr: f32, cfg: MpoConfig) -> Result<Box<A>, mpo_core::config::ConfigError> {
+    agent_with(noise_corr, false, cfg)
+}
+
+fn agent_with(
+    noise_corr: f32,
+    noise_pink: bool,
+    cfg: MpoConfig,
+) -> Result<Box<A>, mpo_core::config::ConfigError> {
     let mut a: Box<A> = bytemuck::zeroed_box();
     let schedule = AgentSchedule {
         warmup_steps: 0,
@@ -23,6 +33,7 @@ fn agent(noise_corr: f32, cfg: MpoConfig) -> Result<Box<A>, mpo_core::config::Co
         updates_per_interval: 1,
         n_step: 1,
         noise_corr,
+        noise_pink,
     };
     a.init(cfg, 7, 11, schedule)?;
     Ok(a)
@@ -125,4 +136,100 @@ fn out_of_range_or_retrace_correlation_is_refused() {
     );
     assert!(agent(0.0, retrace).is_ok());
     assert!(agent(0.99, MpoConfig::REPORT).is_ok());
+}
+
+/// The correlation of pink draws `lag` steps apart, averaged over the pairs `(t, t + lag)` of
+/// an episode of `len` steps: the fraction of the rows both steps share (row `k` is one value
+/// over each block of `2^k` steps), counted pair by pair.
+fn voss_correlation(lag: usize, len: usize) -> f64 {
+    let mut shared = 0usize;
+    for t in 0..len - lag {
+        shared += (0..PINK_OCTAVES)
+            .filter(|&k| t >> k == (t + lag) >> k)
+            .count();
+    }
+    shared as f64 / ((len - lag) * PINK_OCTAVES) as f64
+}
+
+/// Pink noise over 600 episodes of 1024 steps: each draw standard normal (mean 0, variance 1),
+/// the correlation at lags 1 to 512 that of Voss's generator (0.80 at lag 1, 0.23 at 64, 0.07
+/// at 256: the long pushes white noise lacks and AR(1) noise has at one time scale), an episode's first draw the scaled sum
+/// of ten fresh rows and its second one that with only row 0 redrawn.
+#[test]
+fn pink_noise_is_standard_normal_with_the_correlation_of_voss_generator() {
+    const LEN: usize = 1024;
+    const LAGS: [usize; 6] = [1, 2, 8, 64, 256, 512];
+    let mut a = agent_with(0.0, true, MpoConfig::REPORT).unwrap();
+    let scale = 1.0 / (PINK_OCTAVES as f32).sqrt();
+    let (mut n, mut sum, mut sq) = (0f64, 0f64, 0f64);
+    let mut lag_sum = [0f64; LAGS.len()];
+    let mut lag_n = [0f64; LAGS.len()];
+    let mut episode = vec![[0f32; ACT]; LEN];
+    for _ in 0..600 {
+        a.begin_episode();
+        let mut rng = Rng::from_state(a.collector);
+        let mut rows = [[0f32; ACT]; PINK_OCTAVES];
+        for row in rows.iter_mut() {
+            rng.fill_normal(row);
+        }
+        let first =
+            core::array::from_fn::<f32, ACT, _>(|i| rows.iter().map(|r| r[i]).sum::<f32>() * scale);
+        rng.fill_normal(&mut rows[0]);
+        let second =
+            core::array::from_fn::<f32, ACT, _>(|i| rows.iter().map(|r| r[i]).sum::<f32>() * scale);
+        for z in episode.iter_mut() {
+            a.draw_noise(z);
+        }
+        assert_eq!(
+            episode[0], first,
+            "an episode's first draw is not ten fresh rows"
+        );
+        assert_eq!(
+            episode[1], second,
+            "the second draw redraws more than row 0"
+        );
+        for z in &episode {
+            for &x in z {
+                n += 1.0;
+                sum += x as f64;
+                sq += (x as f64) * (x as f64);
+            }
+        }
+        for (j, &lag) in LAGS.iter().enumerate() {
+            for t in 0..LEN - lag {
+                for k in 0..ACT {
+                    lag_sum[j] += (episode[t][k] * episode[t + lag][k]) as f64;
+                    lag_n[j] += 1.0;
+                }
+            }
+        }
+    }
+    let mean = sum / n;
+    let var = sq / n - mean * mean;
+    // An episode's mean has variance about 0.1 (the slow rows hold for most of it): over 1200
+    // episode-dimensions the mean's standard error is about 0.01.
+    assert!(mean.abs() < 0.04, "mean {mean}");
+    assert!((var - 1.0).abs() < 0.05, "variance {var}");
+    for (j, &lag) in LAGS.iter().enumerate() {
+        let got = lag_sum[j] / lag_n[j] / var;
+        let want = voss_correlation(lag, LEN);
+        assert!(
+            (got - want).abs() < 0.03,
+            "lag {lag}: correlation {got}, Voss's generator {want}"
+        );
+    }
+}
+
+/// Pink noise is refused with correlated (AR(1)) noise and with Retrace.
+#[test]
+fn pink_noise_with_ar1_noise_or_retrace_is_refused() {
+    let retrace = MpoConfig {
+        sequence_len: 4,
+        ..MpoConfig::REPORT
+    };
+    for (corr, cfg) in [(0.5, MpoConfig::REPORT), (0.0, retrace)] {
+        let e = agent_with(corr, true, cfg).err().expect("accepted");
+        assert_eq!(e.field, "noise_pink", "noise_corr {corr}");
+    }
+    assert!(agent_with(0.0, true, MpoConfig::REPORT).is_ok());
 }

@@ -150,6 +150,7 @@ fn the_agent_refits_on_schedule_and_normalises_batches_and_actions() {
         updates_per_interval: 1,
         n_step: 1,
         noise_corr: 0.0,
+        noise_pink: false,
     };
     let mut agent: Box<A> = bytemuck::zeroed_box();
     agent.init(cfg, 1, 2, schedule).unwrap();

@@ -266,6 +266,7 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
     }
     let (task, net) = (settings.task.clone(), settings.net.clone());
     let req_noise_corr = settings.schedule.noise_corr;
+    let req_noise_pink = settings.schedule.noise_pink;
     // `--render-every N`: a machine that cannot render says so before training starts.
     let render = match args.render_every {
         Some(n) => {
@@ -302,6 +303,12 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
                 return Err(SettingsError::Invalid(format!(
                     "schedule.noise_corr = {req_noise_corr} cannot run on a device: its START frame carries no noise correlation (set it to 0 with --device)"
                 ))
+                .into());
+            }
+            Some(_) if req_noise_pink => {
+                return Err(SettingsError::Invalid(
+                    "schedule.noise_pink cannot run on a device: its START frame carries no noise kind (leave it false with --device)".into(),
+                )
                 .into());
             }
             Some(_) if !(args.device_timeout.is_finite() && args.device_timeout > 0.0) => {
@@ -772,7 +779,11 @@ pub fn tasks_listing() -> String {
                 z.batch,
                 z.m,
                 z.n,
-                r.schedule.noise_corr,
+                if r.schedule.noise_pink {
+                    "pink".to_string()
+                } else {
+                    r.schedule.noise_corr.to_string()
+                },
                 r.steps
             ));
         }

@@ -67,6 +67,12 @@ pub struct Schedule {
     /// written before it existed: 0, which is what those runs did (so they resume as before).
     #[serde(default)]
     pub noise_corr: f64,
+    /// Pink (1/f) exploration noise (`mpo_core::agent::AgentSchedule::noise_pink`): pushes of
+    /// every duration from one step to an episode, each draw still standard normal. Off in
+    /// every row; exclusive with `noise_corr > 0`, not with Retrace, not on a device. Missing
+    /// in a checkpoint or file written before it existed: off (what those runs did).
+    #[serde(default)]
+    pub noise_pink: bool,
 }
 
 /// How the critic's targets are formed.
@@ -398,6 +404,15 @@ impl Settings {
         }
         if s.noise_corr > 0.0 && self.mpo.policy_evaluation == PolicyEvaluation::Retrace {
             return bad("schedule.noise_corr must be 0 with mpo.policy_evaluation = \"retrace\": Retrace weighs each replayed action by its behaviour density, which correlated noise does not store".into());
+        }
+        if s.noise_pink && s.noise_corr > 0.0 {
+            return bad(format!(
+                "schedule.noise_pink and schedule.noise_corr = {} are two kinds of exploration noise: choose one (noise_corr = 0 with pink noise)",
+                s.noise_corr
+            ));
+        }
+        if s.noise_pink && self.mpo.policy_evaluation == PolicyEvaluation::Retrace {
+            return bad("schedule.noise_pink must be false with mpo.policy_evaluation = \"retrace\": Retrace weighs each replayed action by its behaviour density, which pink noise does not store".into());
         }
         if s.eval_episodes == 0 {
             return bad("schedule.eval_episodes must be at least 1".into());

@@ -165,6 +165,7 @@ const CARTPOLE_SCHEDULE: Schedule = Schedule {
     eval_episodes: 10,
     action_penalty: 0.0,
     noise_corr: 0.0,
+    noise_pink: false,
 };
 
 /// The microcontroller row (`net = "mcu"`, `mpo train --device`): sizes that fit the whole
@@ -177,6 +178,7 @@ const MCU_SCHEDULE: Schedule = Schedule {
     eval_episodes: 10,
     action_penalty: 0.0,
     noise_corr: 0.0,
+    noise_pink: false,
 };
 
 /// Settings for the harder tasks (docs/training.md: the tuning log and ablations).
@@ -208,6 +210,7 @@ const SUITE_SCHEDULE: Schedule = Schedule {
     eval_episodes: 10,
     action_penalty: 0.0,
     noise_corr: 0.0,
+    noise_pink: false,
 };
 
 /// pendulum-swingup's schedule: [`SUITE_SCHEDULE`] with correlated exploration noise
@@ -216,6 +219,7 @@ const SUITE_SCHEDULE: Schedule = Schedule {
 /// at every evaluation to 100k steps; with it seed 0 evaluated 791 at 60k (docs/training.md).
 const PENDULUM_SCHEDULE: Schedule = Schedule {
     noise_corr: 0.95,
+    noise_pink: false,
     ..SUITE_SCHEDULE
 };
 
@@ -225,6 +229,7 @@ const PENDULUM_SCHEDULE: Schedule = Schedule {
 /// independent draws: not yet measured with it.
 const HOPPER_STAND_SCHEDULE: Schedule = Schedule {
     noise_corr: 0.95,
+    noise_pink: false,
     ..SUITE_SCHEDULE
 };
 
@@ -233,7 +238,7 @@ table! {
         steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
     "cartpole-balance" / "tiny": [5, 1, 1; actor (32, 32); critic (32, 32); batch 64 in 2; seq 4; 10, 10; replay 50_000],
         steps 4_000,
-        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0, noise_corr: 0.0 },
+        Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0, noise_corr: 0.0, noise_pink: false },
         CARTPOLE_MPO;
     "cartpole-balance" / "mcu": [5, 1, 1; actor (32, 32); critic (32, 32); batch 32 in 1; seq 1; 8, 8; replay 1_000],
         steps 50_000, MCU_SCHEDULE, CARTPOLE_MPO;

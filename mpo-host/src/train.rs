@@ -622,6 +622,7 @@ pub fn agent_schedule(settings: &Settings) -> AgentSchedule {
             _ => 1,
         },
         noise_corr: s.noise_corr as f32,
+        noise_pink: s.noise_pink,
     }
 }
 

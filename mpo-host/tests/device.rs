@@ -202,6 +202,15 @@ fn a_dying_device_is_a_clear_error_and_the_last_checkpoint_stays() {
         .unwrap();
     let e = err_text(&out);
     assert!(e.contains("cannot run on a device"), "{e}");
+    let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args(["train", "--net", "mcu", "--no-progress", "--out"])
+        .arg(d.join("run5"))
+        .args(["--set", "schedule.noise_pink=true"])
+        .args(["--device", "/nonexistent/trainer"])
+        .output()
+        .unwrap();
+    let e = err_text(&out);
+    assert!(e.contains("noise_pink cannot run on a device"), "{e}");
     // A device for other sizes: a hopper row against the cartpole trainer (hopper-hop: the
     // hopper-stand rows' correlated noise would be refused before the device is asked).
     let out = Command::new(env!("CARGO_BIN_EXE_mpo"))

@@ -154,6 +154,27 @@ fn bad_configuration_is_reported() {
         e.contains("noise_corr must be 0 with mpo.policy_evaluation"),
         "{e}"
     );
+    let two_noises = [
+        "--set",
+        "schedule.noise_pink=true",
+        "--set",
+        "schedule.noise_corr=0.5",
+    ];
+    let e = err_text(&tiny(&d.join("p"), 1000, &two_noises));
+    assert!(e.contains("two kinds of exploration noise"), "{e}");
+    let retrace_pink = [
+        "--set",
+        "schedule.noise_pink=true",
+        "--set",
+        "mpo.policy_evaluation=\"retrace\"",
+        "--set",
+        "mpo.n_step=3",
+    ];
+    let e = err_text(&tiny(&d.join("q"), 1000, &retrace_pink));
+    assert!(
+        e.contains("noise_pink must be false with mpo.policy_evaluation"),
+        "{e}"
+    );
     let cfg = d.join("bad.toml");
     std::fs::write(&cfg, "seed = \"zero\"\n").unwrap();
     let e = err_text(&tiny(

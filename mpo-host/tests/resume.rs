@@ -110,8 +110,8 @@ fn ctrl_c_checkpoints_at_an_episode_boundary_and_resume_matches() {
 
 /// The learner's thread count changes nothing: one, two and three threads give the same
 /// parameters and metrics, for TD and for Retrace with action penalization, Polyak targets,
-/// the layer-normalised critic and observation normalisation, and for correlated exploration
-/// noise; and a run resumed on a different number of threads still matches.
+/// the layer-normalised critic and observation normalisation, and for correlated (AR(1)) and
+/// pink exploration noise; and a run resumed on a different number of threads still matches.
 #[test]
 fn thread_count_does_not_change_a_bit() {
     let d = scratch("threads");
@@ -136,6 +136,7 @@ fn thread_count_does_not_change_a_bit() {
             ][..],
         ),
         ("noise", &["--set", "schedule.noise_corr=0.9"][..]),
+        ("pink", &["--set", "schedule.noise_pink=true"][..]),
     ] {
         let mut sums = vec![];
         for threads in ["1", "2", "3"] {
@@ -153,11 +154,14 @@ fn thread_count_does_not_change_a_bit() {
         first[0], first[2],
         "correlated noise left the run unchanged"
     );
+    assert_ne!(first[0], first[3], "pink noise left the run unchanged");
+    assert_ne!(first[2], first[3], "pink noise is the AR(1) noise");
     // 1000 steps on 3 threads, then resumed on 1 (with correlated noise too: the noise
     // restarts at the episode boundary a checkpoint is taken at, so nothing of it is lost).
     for (name, extra) in [
         ("td", &[][..]),
         ("noise", &["--set", "schedule.noise_corr=0.9"][..]),
+        ("pink", &["--set", "schedule.noise_pink=true"][..]),
     ] {
         let dir = d.join(format!("{name}-switch"));
         let mut args = extra.to_vec();

@@ -183,6 +183,7 @@ impl Device {
             n_step: u32_at(p, 24),
             // START carries no noise correlation: the host refuses one for a device.
             noise_corr: 0.0,
+            noise_pink: false,
         };
         let seed = u32_at(p, 28) as u64;
         let mut w = [0u32; CONFIG_WORDS];
