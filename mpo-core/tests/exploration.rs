@@ -196,9 +196,9 @@ fn pink_noise_is_standard_normal_with_the_correlation_of_voss_generator() {
             }
         }
         for (j, &lag) in LAGS.iter().enumerate() {
-            for t in 0..LEN - lag {
-                for k in 0..ACT {
-                    lag_sum[j] += (episode[t][k] * episode[t + lag][k]) as f64;
+            for (now, later) in episode.iter().zip(&episode[lag..]) {
+                for (x, y) in now.iter().zip(later) {
+                    lag_sum[j] += (x * y) as f64;
                     lag_n[j] += 1.0;
                 }
             }
