@@ -46,6 +46,7 @@ fn threaded_updates_allocate_nothing_on_any_thread() {
             target_tau: 0.005,
             critic_layer_norm: true,
             tanh_mean: true,
+            clip_critic_actions: true,
             ..MpoConfig::REPORT
         },
         MpoConfig {

@@ -81,6 +81,13 @@ pub struct MpoConfig {
     /// tonic's squashed mean: the policy's mean is `tanh` of its head, so it stays inside the
     /// actuators' range `[-1, 1]` (`crate::squash`); off = the unbounded linear head.
     pub tanh_mean: bool,
+    /// Acme's `ClipToSpec` before the critic: every action the critic is given (replayed
+    /// actions in its loss, target-policy samples in the targets and the E-step) is clipped to
+    /// the actuators' range `[-1, 1]` first. The plant clips, so `Q(s, a) = Q(s, clip(a))`
+    /// exactly; without it the critic extrapolates beyond the box, where it has no data, and
+    /// the E-step weighs samples there by that extrapolation. The policy's samples themselves
+    /// (the M-step's likelihood, the penalty objective) are not clipped.
+    pub clip_critic_actions: bool,
 }
 
 impl MpoConfig {
@@ -113,6 +120,7 @@ impl MpoConfig {
         critic_layer_norm: false,
         obs_norm_interval: 0,
         tanh_mean: false,
+        clip_critic_actions: false,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -195,7 +203,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 28;
+pub const CONFIG_WORDS: usize = 29;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -232,6 +240,7 @@ impl MpoConfig {
             self.critic_layer_norm as u32,
             self.obs_norm_interval,
             self.tanh_mean as u32,
+            self.clip_critic_actions as u32,
         ]
     }
 
@@ -274,6 +283,7 @@ impl MpoConfig {
             critic_layer_norm: flag(w[25], "critic_layer_norm")?,
             obs_norm_interval: w[26],
             tanh_mean: flag(w[27], "tanh_mean")?,
+            clip_critic_actions: flag(w[28], "clip_critic_actions")?,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -323,6 +333,7 @@ mod tests {
             critic_layer_norm: true,
             obs_norm_interval: 1000,
             tanh_mean: true,
+            clip_critic_actions: true,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();
@@ -332,6 +343,9 @@ mod tests {
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[27] = 2;
+        assert!(MpoConfig::from_words(&bad).is_err());
+        let mut bad = w;
+        bad[28] = 2;
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[4] = 2.0f32.to_bits(); // gamma out of range

@@ -200,6 +200,11 @@ struct Chunk<
     samples: [[[f32; ACT]; BC]; M],
     q_samples: [[f32; M]; BC],
     q_penalty: [[f32; M]; BC],
+    /// The batch's actions as the critic's loss sees them (clipped with
+    /// `clip_critic_actions`), kept for the weight gradient.
+    critic_action: [[f32; ACT]; BC],
+    /// Scratch for a clipped copy of sampled or replayed actions before a critic pass.
+    clipped: [[f32; ACT]; BC],
     stats: [SampleStats<ACT>; BC],
     q: [[f32; 1]; BC],
     dq: [[f32; 1]; BC],
@@ -589,7 +594,11 @@ impl<
                 estep_samples(cfg, ta, tc, &b.obs[0], seed, c, ch);
             }
             targets(cfg, ta, tc, b, seed, c, ch);
-            critic.forward(&b.obs[0], &b.action[0], &mut ch.ctape, &mut ch.q, ln);
+            ch.critic_action = b.action[0];
+            if cfg.clip_critic_actions {
+                clip_rows(&mut ch.critic_action);
+            }
+            critic.forward(&b.obs[0], &ch.critic_action, &mut ch.ctape, &mut ch.q, ln);
             let inv_b = 1.0 / (BC * C) as f32;
             for n in 0..BC {
                 ch.err[n] = ch.q[n][0] - ch.target[n];
@@ -645,7 +654,7 @@ impl<
         let chunks = &self.chunks;
         let batch = &self.batch;
         let obs: [&[[f32; OBS]]; C] = core::array::from_fn(|c| &batch[c].obs[0][..]);
-        let act: [&[[f32; ACT]]; C] = core::array::from_fn(|c| &batch[c].action[0][..]);
+        let act: [&[[f32; ACT]]; C] = core::array::from_fn(|c| &chunks[c].critic_action[..]);
         let h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.h1[..]);
         let h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &chunks[c].ctape.h2[..]);
         let d_h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_h1[..]);
@@ -883,6 +892,29 @@ fn excess<const A: usize>(a: &[f32; A]) -> f32 {
     s
 }
 
+/// Clips every action of `rows` to the actuators' range `[-1, 1]`.
+fn clip_rows<const ACT: usize>(rows: &mut [[f32; ACT]]) {
+    for x in rows.iter_mut().flatten() {
+        *x = x.clamp(-1.0, 1.0);
+    }
+}
+
+/// The actions a critic pass is given: `a` itself, or (with `clip_critic_actions`) a copy in
+/// `buf` clipped to `[-1, 1]`, what the plant applies.
+fn critic_input<'a, const ACT: usize, const BC: usize>(
+    cfg: &MpoConfig,
+    a: &'a [[f32; ACT]; BC],
+    buf: &'a mut [[f32; ACT]; BC],
+) -> &'a [[f32; ACT]; BC] {
+    if cfg.clip_critic_actions {
+        *buf = *a;
+        clip_rows(buf);
+        buf
+    } else {
+        a
+    }
+}
+
 /// The E-step's samples at the chunk's states `obs` and their target-critic values: the
 /// target policy there (kept in `ch.old`), `M` draws per row from the row's own stream.
 #[allow(clippy::too_many_arguments)]
@@ -920,7 +952,7 @@ fn estep_samples<
     for j in 0..M {
         tc.forward_from_state_part(
             &ch.pre1,
-            &ch.samples[j],
+            critic_input(cfg, &ch.samples[j], &mut ch.clipped),
             &mut ch.ctape,
             &mut ch.q,
             cfg.critic_layer_norm,
@@ -964,7 +996,7 @@ fn targets<
             // are still in `next_pi` and `pre1`.
             tc.forward_from_state_part(
                 &ch.pre1,
-                &b.action[k],
+                critic_input(cfg, &b.action[k], &mut ch.clipped),
                 &mut ch.ctape,
                 &mut ch.q,
                 cfg.critic_layer_norm,
@@ -990,7 +1022,7 @@ fn targets<
         for j in 0..N {
             tc.forward_from_state_part(
                 &ch.pre1,
-                &ch.next_samples[j],
+                critic_input(cfg, &ch.next_samples[j], &mut ch.clipped),
                 &mut ch.ctape,
                 &mut ch.q,
                 cfg.critic_layer_norm,

@@ -165,6 +165,7 @@ impl SelfCheck {
                 sequence_len: 3,
                 target_tau: 0.05,
                 tanh_mean: true,
+                clip_critic_actions: true,
                 ..base
             },
             MpoConfig {

@@ -128,6 +128,11 @@ pub struct MpoSettings {
     pub obs_norm_interval: u32,
     /// tonic's squashed mean: the policy's mean is `tanh` of its head, inside `[-1, 1]`.
     pub tanh_mean: bool,
+    /// Acme's clip before the critic: every action the critic sees is clipped to `[-1, 1]`
+    /// (what the plant applies), so it never extrapolates beyond the actuators' range. Missing
+    /// in a file or checkpoint written before it existed: off, as those runs trained.
+    #[serde(default)]
+    pub clip_critic_actions: bool,
 }
 
 impl MpoSettings {
@@ -161,6 +166,7 @@ impl MpoSettings {
         critic_layer_norm: false,
         obs_norm_interval: 0,
         tanh_mean: false,
+        clip_critic_actions: false,
     };
 
     /// The learner's configuration (one `f64 -> f32` rounding per field).
@@ -199,6 +205,7 @@ impl MpoSettings {
             critic_layer_norm: self.critic_layer_norm,
             obs_norm_interval: self.obs_norm_interval,
             tanh_mean: self.tanh_mean,
+            clip_critic_actions: self.clip_critic_actions,
             ..MpoConfig::REPORT
         }
     }

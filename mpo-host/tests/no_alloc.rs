@@ -51,6 +51,8 @@ fn collect_and_learn_allocate_nothing() {
         settings.mpo.obs_norm_interval = if n == 3 { 300 } else { 0 };
         // The squashed mean on Retrace (its target-policy passes squash too).
         settings.mpo.tanh_mean = n == 4;
+        // The clip before the critic on TD and Retrace (its copies are fixed scratch).
+        settings.mpo.clip_critic_actions = n != 3;
         let mut t = Tiny::new(&settings, None, 2).unwrap();
         let before = ALLOCS.load(Ordering::SeqCst);
         // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).

@@ -110,7 +110,8 @@ fn ctrl_c_checkpoints_at_an_episode_boundary_and_resume_matches() {
 
 /// The learner's thread count changes nothing: one, two and three threads give the same
 /// parameters and metrics, for TD and for Retrace with action penalization, Polyak targets,
-/// the layer-normalised critic and observation normalisation, and for correlated (AR(1)) and
+/// the layer-normalised critic, observation normalisation and the clip before the critic,
+/// and for correlated (AR(1)) and
 /// pink exploration noise; and a run resumed on a different number of threads still matches.
 #[test]
 fn thread_count_does_not_change_a_bit() {
@@ -133,6 +134,8 @@ fn thread_count_does_not_change_a_bit() {
                 "mpo.obs_norm_interval=200",
                 "--set",
                 "mpo.tanh_mean=true",
+                "--set",
+                "mpo.clip_critic_actions=true",
             ][..],
         ),
         ("noise", &["--set", "schedule.noise_corr=0.9"][..]),
