@@ -202,6 +202,17 @@ const HOPPER_MPO: MpoSettings = MpoSettings {
     ..SUITE_MPO
 };
 
+/// pendulum-swingup's settings: [`SUITE_MPO`] with the clip before the critic (Acme's). With
+/// the penalty alone one seed of three never pumped from the bottom (525 at 200k: its mean held
+/// well inside the box by the penalty, its samples beyond it valued by the critic's
+/// extrapolation); with the clip the critic values every sample at the action the plant
+/// applies, the policy narrows (mean standard deviation 0.08-0.13 at 200k) and every seed swings
+/// up: three seeds 778.1 +- 37.4 at 200k against 690.1 +- 121.9 (docs/training.md).
+const PENDULUM_MPO: MpoSettings = MpoSettings {
+    clip_critic_actions: true,
+    ..SUITE_MPO
+};
+
 const SUITE_SCHEDULE: Schedule = Schedule {
     warmup_steps: 10_000,
     update_interval: 2,
@@ -246,7 +257,7 @@ table! {
     "cartpole-swingup" / "default": [5, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
     "pendulum-swingup" / "default": [3, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
-        steps 200_000, PENDULUM_SCHEDULE, SUITE_MPO;
+        steps 200_000, PENDULUM_SCHEDULE, PENDULUM_MPO;
     "acrobot-swingup" / "default": [6, 1, 1; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
     "hopper-stand" / "default": [15, 4, 10; actor (256, 256); critic (256, 256); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
@@ -264,7 +275,7 @@ table! {
     "cartpole-swingup" / "small": [5, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 200_000, SUITE_SCHEDULE, SUITE_MPO;
     "pendulum-swingup" / "small": [3, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
-        steps 200_000, PENDULUM_SCHEDULE, SUITE_MPO;
+        steps 200_000, PENDULUM_SCHEDULE, PENDULUM_MPO;
     "acrobot-swingup" / "small": [6, 1, 1; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
         steps 1_000_000, SUITE_SCHEDULE, SUITE_MPO;
     "hopper-stand" / "small": [15, 4, 10; actor (128, 128); critic (128, 128); batch 256 in 4; seq 8; 20, 20; replay 1_000_000],
