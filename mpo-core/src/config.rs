@@ -82,11 +82,12 @@ pub struct MpoConfig {
     /// actuators' range `[-1, 1]` (`crate::squash`); off = the unbounded linear head.
     pub tanh_mean: bool,
     /// Acme's `ClipToSpec` before the critic: every action the critic is given (replayed
-    /// actions in its loss, target-policy samples in the targets and the E-step) is clipped to
+    /// actions in its loss and in Retrace's targets, target-policy samples in the targets and
+    /// the E-step) is clipped to
     /// the actuators' range `[-1, 1]` first. The plant clips, so `Q(s, a) = Q(s, clip(a))`
     /// exactly; without it the critic extrapolates beyond the box, where it has no data, and
-    /// the E-step weighs samples there by that extrapolation. The policy's samples themselves
-    /// (the M-step's likelihood, the penalty objective) are not clipped.
+    /// the E-step weighs samples there by that extrapolation. Everything else reads the
+    /// unclipped actions (the M-step's likelihood, the penalty objective, Retrace's ratios).
     pub clip_critic_actions: bool,
 }
 

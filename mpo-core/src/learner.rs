@@ -14,6 +14,8 @@
 //!    E-step reuses the TD target's `N` samples at the next states.
 //! 3. **M-step** ([`crate::mstep`]), `mstep_iters` times: one Adam step of the actor on the
 //!    weighted likelihood with the decoupled KL penalties, one of the multipliers.
+//!    With `clip_critic_actions` (Acme's) every action the critic is given in 1-2 is first
+//!    clipped to `[-1, 1]`, as the plant applies it; the samples stay unclipped elsewhere.
 //! 4. The targets follow the online networks: a copy every `target_period` updates, or Polyak
 //!    averaging with `target_tau` after every update.
 //!
@@ -200,8 +202,8 @@ struct Chunk<
     samples: [[[f32; ACT]; BC]; M],
     q_samples: [[f32; M]; BC],
     q_penalty: [[f32; M]; BC],
-    /// The batch's actions as the critic's loss sees them (clipped with
-    /// `clip_critic_actions`), kept for the weight gradient.
+    /// With `clip_critic_actions`: the batch's actions clipped, as the critic's loss sees
+    /// them, kept for the weight gradient (unused otherwise: the batch's own are read).
     critic_action: [[f32; ACT]; BC],
     /// Scratch for a clipped copy of sampled or replayed actions before a critic pass.
     clipped: [[f32; ACT]; BC],
@@ -594,11 +596,8 @@ impl<
                 estep_samples(cfg, ta, tc, &b.obs[0], seed, c, ch);
             }
             targets(cfg, ta, tc, b, seed, c, ch);
-            ch.critic_action = b.action[0];
-            if cfg.clip_critic_actions {
-                clip_rows(&mut ch.critic_action);
-            }
-            critic.forward(&b.obs[0], &ch.critic_action, &mut ch.ctape, &mut ch.q, ln);
+            let act = critic_input(cfg, &b.action[0], &mut ch.critic_action);
+            critic.forward(&b.obs[0], act, &mut ch.ctape, &mut ch.q, ln);
             let inv_b = 1.0 / (BC * C) as f32;
             for n in 0..BC {
                 ch.err[n] = ch.q[n][0] - ch.target[n];
@@ -654,7 +653,14 @@ impl<
         let chunks = &self.chunks;
         let batch = &self.batch;
         let obs: [&[[f32; OBS]]; C] = core::array::from_fn(|c| &batch[c].obs[0][..]);
-        let act: [&[[f32; ACT]]; C] = core::array::from_fn(|c| &chunks[c].critic_action[..]);
+        let clip = self.cfg.clip_critic_actions;
+        let act: [&[[f32; ACT]]; C] = core::array::from_fn(|c| {
+            if clip {
+                &chunks[c].critic_action[..]
+            } else {
+                &batch[c].action[0][..]
+            }
+        });
         let h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.h1[..]);
         let h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &chunks[c].ctape.h2[..]);
         let d_h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &chunks[c].ctape.d_h1[..]);
