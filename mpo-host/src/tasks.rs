@@ -157,6 +157,20 @@ const CARTPOLE_MPO: MpoSettings = MpoSettings {
     ..MpoSettings::REPORT
 };
 
+/// The `cartpole-balance/default` row: [`CARTPOLE_MPO`] with the clip before the critic and
+/// multipliers ten times slower (`dual_lr` 1e-3). With the report's `dual_lr` (1e-2) five seeds
+/// first reach 900 by 20k-90k but end at 854 / 918 / 695 / 992 / 997 (891 on average), with
+/// falls to 190-510 on the way: the critic, evaluating samples beyond the box, overestimates
+/// (Q above the 100 a reward of at most 1 allows) and the covariance multiplier winds up to
+/// 1e6 within a few hundred updates. With both changes the five seeds end at 980 / 985 / 964 /
+/// 951 / 952 (966 on average) and first reach 900 by 30k-60k (docs/training.md). The tiny and
+/// mcu rows keep [`CARTPOLE_MPO`] (the tests' and the device's measured runs).
+const CARTPOLE_DEFAULT_MPO: MpoSettings = MpoSettings {
+    clip_critic_actions: true,
+    dual_lr: 1e-3,
+    ..CARTPOLE_MPO
+};
+
 const CARTPOLE_SCHEDULE: Schedule = Schedule {
     warmup_steps: 2_000,
     update_interval: 2,
@@ -247,7 +261,7 @@ const HOPPER_SCHEDULE: Schedule = Schedule {
 
 table! {
     "cartpole-balance" / "default": [5, 1, 1; actor (64, 64); critic (64, 64); batch 128 in 2; seq 8; 20, 20; replay 100_000],
-        steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_MPO;
+        steps 100_000, CARTPOLE_SCHEDULE, CARTPOLE_DEFAULT_MPO;
     "cartpole-balance" / "tiny": [5, 1, 1; actor (32, 32); critic (32, 32); batch 64 in 2; seq 4; 10, 10; replay 50_000],
         steps 4_000,
         Schedule { warmup_steps: 500, update_interval: 4, updates_per_interval: 1, eval_interval: 1_000, eval_episodes: 3, action_penalty: 0.0, noise_corr: 0.0, noise_pink: false },
