@@ -243,15 +243,14 @@ pub fn resolve_resumed(
 
 /// The deadline of a request in lockstep (training and `mpo run --lockstep` through a
 /// controller): long enough that a descheduled controller on a loaded machine still answers,
-/// so the run stays bit-identical to one in-process; a dead controller still only costs a
-/// second per request before the safe action and the restart.
+/// so the run stays bit-identical to one in-process (100 ms was once missed under the whole
+/// test suite on two vCPUs with a busy-polling controller); a dead controller costs a second
+/// before the safe action and its restart.
 const LOCKSTEP_DEADLINE: Duration = Duration::from_secs(1);
 
 /// `mpo train`.
 pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error> {
-    // Lockstep through a controller: a generous deadline, so a loaded machine does not turn
-    // into misses (which would make the run differ from an in-process one). 100 ms was not
-    // enough: under the whole test suite on two vCPUs a busy-polling controller missed one.
+    // Training through a controller is lockstep: a miss would make the run differ.
     let link = LinkOptions::from_args(&args.link, LOCKSTEP_DEADLINE, None)
         .map_err(SettingsError::Invalid)?;
     let (settings, out, mut resume) = resolve_train(args)?;

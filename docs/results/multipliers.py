@@ -1,0 +1,49 @@
+#!/usr/bin/env python3
+"""Tabulates the covariance multiplier's wind-up of `mpo train` runs for docs/training.md.
+
+Usage: docs/results/multipliers.py [--above X] RUN_DIR...
+(each RUN_DIR with metrics.csv). Per run, over the evaluations after learning started: how many
+have `alpha_cov` (the mean over the updates before the evaluation) above X (default 1e4), the
+first step where it is, the largest `alpha_cov`, the actor's gradient norm range at those
+evaluations, `std_max` at the last evaluation and the last evaluation's return.
+"""
+import csv
+import sys
+
+
+def row(run, above):
+    with open(f"{run}/metrics.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["alpha_cov"]]
+    if not rows:
+        return f"| {run} | no updates yet | | | | | |"
+    wound = [r for r in rows if float(r["alpha_cov"]) > above]
+    first = f"{int(wound[0]['env_steps']) // 1000}k" if wound else "-"
+    grads = [float(r["actor_grad_norm"]) for r in wound]
+    grad = f"{min(grads):.3g}-{max(grads):.3g}" if grads else "-"
+    last = rows[-1]
+    return (
+        f"| {run} | {len(wound)} of {len(rows)} | {first} "
+        f"| {max(float(r['alpha_cov']) for r in rows):.2g} | {grad} "
+        f"| {float(last['std_max']):.2f} "
+        f"| {float(last['eval_return_mean']):.1f} at {int(last['env_steps']) // 1000}k |"
+    )
+
+
+def main():
+    args = sys.argv[1:]
+    above = 1e4
+    if args[:1] == ["--above"]:
+        above, args = float(args[1]), args[2:]
+    if not args:
+        sys.exit(__doc__)
+    print(
+        f"| run | evaluations with `alpha_cov` > {above:g} | first at | largest `alpha_cov` "
+        "| actor gradient norm there | `std_max` at the end | return at the end |"
+    )
+    print("|---|---:|---:|---:|---|---:|---|")
+    for run in args:
+        print(row(run, above))
+
+
+if __name__ == "__main__":
+    main()
