@@ -1,10 +1,12 @@
 #!/usr/bin/env python3
 """Summarises `mpo train` run directories into the markdown rows of docs/training.md.
 
-Usage: docs/results/summarize.py [--target X] [--label NAME] RUN_DIR...
+Usage: docs/results/summarize.py [--target X] [--at STEP] [--label NAME] RUN_DIR...
 (each RUN_DIR with metrics.csv). Per run: first environment step whose evaluation mean is
 >= X (default 900) and the training wall clock there, best and final evaluation, total wall
-clock, mean environment steps/s and updates/s. With several runs, a last row gives the final
+clock, mean environment steps/s and updates/s. `--at STEP` reads each run as if it ended at
+the evaluation of environment step STEP (so runs stopped at different steps compare at one
+budget; a run without that evaluation is an error). With several runs, a last row gives the final
 evaluation's mean +- standard deviation over the runs (population std, as the evaluation's).
 """
 import csv
@@ -14,10 +16,12 @@ import sys
 
 def main():
     args = sys.argv[1:]
-    target, label = 900.0, None
+    target, label, at = 900.0, None, None
     while args and args[0].startswith("--"):
         if args[0] == "--target":
             target = float(args[1])
+        elif args[0] == "--at":
+            at = int(args[1])
         elif args[0] == "--label":
             label = args[1]
         else:
@@ -29,6 +33,11 @@ def main():
     finals = []
     for d in args:
         rows = list(csv.DictReader(open(f"{d}/metrics.csv")))
+        if at is not None:
+            cut = [r for r in rows if int(r["env_steps"]) <= at]
+            if not cut or int(cut[-1]["env_steps"]) != at:
+                sys.exit(f"{d}: no evaluation at environment step {at}")
+            rows = cut
         first = next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
         last = rows[-1]
         best = max(float(r["eval_return_mean"]) for r in rows)
