@@ -162,9 +162,10 @@ const CARTPOLE_MPO: MpoSettings = MpoSettings {
 /// first reach 900 by 20k-90k but end at 854 / 918 / 695 / 992 / 998 (891 on average), four of
 /// them falling to 190-513 after 50k: the critic, evaluating samples beyond the box,
 /// overestimates (Q above the 100 a reward of at most 1 allows) and the covariance multiplier
-/// winds up (40 to 1.9e6 between two evaluations 5k steps apart). With both changes the five seeds end at 980 / 985 / 964 /
-/// 951 / 952 (966 on average) and first reach 900 by 30k-60k (docs/training.md). The tiny and
-/// mcu rows keep [`CARTPOLE_MPO`] (the tests' and the device's measured runs).
+/// winds up (40 to 1.9e6 between two evaluations 5k steps apart). With both changes the five
+/// seeds end at 980 / 985 / 964 / 951 / 952 (966 on average) and first reach 900 by 30k-60k
+/// (docs/training.md). The tiny and mcu rows keep [`CARTPOLE_MPO`] (the tests' and the
+/// device's measured runs).
 const CARTPOLE_DEFAULT_MPO: MpoSettings = MpoSettings {
     clip_critic_actions: true,
     dual_lr: 1e-3,
@@ -252,7 +253,6 @@ const SUITE_SCHEDULE: Schedule = Schedule {
 ///   every evaluation to 60k.
 const CORRELATED_NOISE_SCHEDULE: Schedule = Schedule {
     noise_corr: 0.95,
-    noise_pink: false,
     ..SUITE_SCHEDULE
 };
 
