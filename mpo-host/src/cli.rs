@@ -179,6 +179,14 @@ pub struct PlotArgs {
     /// Run directories (each with metrics.jsonl); each becomes one labelled curve.
     #[arg(required = true, value_name = "RUN_DIR")]
     pub runs: Vec<PathBuf>,
+    /// One panel per task (read from each run's config.toml), in the order the tasks first
+    /// appear, each with its runs as curves: e.g. every task's seeds in one image.
+    #[arg(long)]
+    pub by_task: bool,
+    /// With --by-task: a dashed line at RETURN in TASK's panel, e.g. `--target walker-walk=900`.
+    /// Repeat for several tasks.
+    #[arg(long, value_name = "TASK=RETURN", requires = "by_task")]
+    pub target: Vec<String>,
 }
 
 /// `mpo train`.

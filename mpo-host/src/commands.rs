@@ -797,47 +797,103 @@ pub fn tasks_listing() -> String {
     s
 }
 
-/// `mpo plot`: one curve per run directory, labelled with the directory's name.
+/// `mpo plot`: one curve per run directory, labelled with the directory's name; with
+/// `--by-task`, one panel per task.
 pub fn plot(args: &PlotArgs) -> Result<(), Error> {
-    let mut series = Vec::new();
-    let mut task = None;
+    let mut runs = Vec::new();
     for dir in &args.runs {
-        let path = dir.join("metrics.jsonl");
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
-        let mut pts = Vec::new();
-        for (i, line) in text.lines().enumerate() {
-            let v: serde_json::Value = serde_json::from_str(line)
-                .map_err(|e| Error::Plot(format!("{} line {}: {e}", path.display(), i + 1)))?;
-            let get = |k: &str| {
-                v.get(k).and_then(|x| x.as_f64()).ok_or_else(|| {
-                    Error::Plot(format!(
-                        "{} line {}: no number `{k}`",
-                        path.display(),
-                        i + 1
-                    ))
-                })
-            };
-            pts.push((
-                get("env_steps")? as u64,
-                get("eval_return_mean")?,
-                get("eval_return_std")?,
-            ));
-        }
-        if task.is_none() {
-            task = settings::read_table(&dir.join("config.toml"))
-                .ok()
-                .and_then(|t| str_value(&t, "task"));
-        }
-        let label = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().to_string())
-            .unwrap_or_else(|| dir.display().to_string());
-        series.push((label, pts));
+        runs.push(read_run_curve(dir)?);
     }
-    let title = args
-        .title
-        .clone()
-        .unwrap_or_else(|| format!("MPO {}", task.unwrap_or_default()));
+    if args.by_task {
+        return plot_by_task(args, runs);
+    }
+    let title = args.title.clone().unwrap_or_else(|| {
+        format!(
+            "MPO {}",
+            runs.iter().find_map(|r| r.2.clone()).unwrap_or_default()
+        )
+    });
+    let series: Vec<_> = runs
+        .into_iter()
+        .map(|(label, pts, _)| (label, pts))
+        .collect();
     crate::plot::write_curves(&args.out, &title, &series).map_err(Error::Plot)
+}
+
+/// `mpo plot --by-task`: the runs grouped by their task into panels, with the `--target` lines.
+fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
+    let mut panels: Vec<crate::plot::Panel> = Vec::new();
+    for ((label, pts, task), dir) in runs.into_iter().zip(&args.runs) {
+        let task = task.ok_or_else(|| {
+            Error::Plot(format!(
+                "{}: no `task` in config.toml (--by-task groups runs by it)",
+                dir.display()
+            ))
+        })?;
+        match panels.iter_mut().find(|p| p.title == task) {
+            Some(p) => p.series.push((label, pts)),
+            None => panels.push(crate::plot::Panel {
+                title: task,
+                series: vec![(label, pts)],
+                target: None,
+            }),
+        }
+    }
+    for t in &args.target {
+        let bad = || {
+            Error::Plot(format!(
+                "--target {t}: expected TASK=RETURN, e.g. walker-walk=900"
+            ))
+        };
+        let (task, value) = t.split_once('=').ok_or_else(bad)?;
+        let value: f64 = value.trim().parse().map_err(|_| bad())?;
+        let panel = panels
+            .iter_mut()
+            .find(|p| p.title == task.trim())
+            .ok_or_else(|| {
+                Error::Plot(format!(
+                    "--target {t}: none of the runs given is of task {task}"
+                ))
+            })?;
+        panel.target = Some(value);
+    }
+    let title = args.title.clone().unwrap_or_else(|| "MPO".to_string());
+    crate::plot::write_panels(&args.out, &title, &panels).map_err(Error::Plot)
+}
+
+/// One run's curve: its label (the directory's name), `(env_steps, mean, std)` per evaluation
+/// from `metrics.jsonl`, and its task from `config.toml` when there is one.
+type RunCurve = (String, Vec<(u64, f64, f64)>, Option<String>);
+
+fn read_run_curve(dir: &std::path::Path) -> Result<RunCurve, Error> {
+    let path = dir.join("metrics.jsonl");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
+    let mut pts = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let v: serde_json::Value = serde_json::from_str(line)
+            .map_err(|e| Error::Plot(format!("{} line {}: {e}", path.display(), i + 1)))?;
+        let get = |k: &str| {
+            v.get(k).and_then(|x| x.as_f64()).ok_or_else(|| {
+                Error::Plot(format!(
+                    "{} line {}: no number `{k}`",
+                    path.display(),
+                    i + 1
+                ))
+            })
+        };
+        pts.push((
+            get("env_steps")? as u64,
+            get("eval_return_mean")?,
+            get("eval_return_std")?,
+        ));
+    }
+    let task = settings::read_table(&dir.join("config.toml"))
+        .ok()
+        .and_then(|t| str_value(&t, "task"));
+    let label = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| dir.display().to_string());
+    Ok((label, pts, task))
 }

@@ -7,6 +7,7 @@
 use std::path::Path;
 use std::sync::OnceLock;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::metrics::MetricsRow;
@@ -45,11 +46,69 @@ pub fn write_curve(path: &Path, title: &str, rows: &[MetricsRow]) -> Result<(), 
     write_curves(path, title, &[(String::new(), points)])
 }
 
+/// One chart of a grid (`mpo plot --by-task`): its title, its curves and, when given, a
+/// dashed horizontal line at a target return.
+pub struct Panel {
+    /// The panel's caption (the task).
+    pub title: String,
+    /// Its curves, one per run.
+    pub series: Vec<Series>,
+    /// Where to draw the target line, if anywhere.
+    pub target: Option<f64>,
+}
+
 /// Draws several learning curves (e.g. seeds) into one chart, with a legend when labelled.
 pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), String> {
     if !register_font() {
         return Err(format!("no TrueType font found (tried {FONT_PATHS:?})"));
     }
+    let root = BitMapBackend::new(path, (900, 540)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| x.to_string())?;
+    draw_panel(&root, title, series, None, 22)?;
+    root.present().map_err(|x| x.to_string())
+}
+
+/// Columns of the grid of `n` panels: up to three in a row, so ten tasks make four rows that
+/// still read on a laptop screen.
+pub fn grid_columns(n: usize) -> usize {
+    n.clamp(1, 3)
+}
+
+/// Pixel size of the image of `n` panels (480 x 320 each, and a 40-pixel title band).
+pub fn grid_size(n: usize) -> (u32, u32) {
+    let cols = grid_columns(n);
+    let rows = n.max(1).div_ceil(cols);
+    (480 * cols as u32, 320 * rows as u32 + 40)
+}
+
+/// Draws one panel per entry of `panels` in a grid under one title: several tasks' curves at a
+/// glance, each on its own step axis.
+pub fn write_panels(path: &Path, title: &str, panels: &[Panel]) -> Result<(), String> {
+    if !register_font() {
+        return Err(format!("no TrueType font found (tried {FONT_PATHS:?})"));
+    }
+    let cols = grid_columns(panels.len());
+    let rows = panels.len().max(1).div_ceil(cols);
+    let root = BitMapBackend::new(path, grid_size(panels.len())).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| x.to_string())?;
+    let body = root
+        .titled(title, ("sans-serif", 24))
+        .map_err(|x| x.to_string())?;
+    for (p, area) in panels.iter().zip(body.split_evenly((rows, cols))) {
+        draw_panel(&area, &p.title, &p.series, p.target, 16)?;
+    }
+    root.present().map_err(|x| x.to_string())
+}
+
+/// One chart in `area`: each series as its mean line, points and +-1 std band, the x axis to
+/// the longest series, the y axis the Control Suite's 0-1000 return range.
+fn draw_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    title: &str,
+    series: &[Series],
+    target: Option<f64>,
+    caption: u32,
+) -> Result<(), String> {
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let xmax = series
         .iter()
@@ -57,10 +116,8 @@ pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), S
         .max()
         .unwrap_or(1)
         .max(1) as f64;
-    let root = BitMapBackend::new(path, (900, 540)).into_drawing_area();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 22))
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", caption))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
@@ -71,10 +128,29 @@ pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), S
         .x_desc("environment steps")
         .y_desc("evaluation return")
         .label_style(("sans-serif", 14))
-        .x_label_formatter(&|x| format!("{:.0}k", x / 1000.0))
+        .x_label_formatter(&|x| steps_label(*x))
         .y_label_formatter(&|y| format!("{y:.0}"))
         .draw()
         .map_err(|x| e(&x))?;
+    if let Some(y) = target {
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(0.0, y), (xmax, y)],
+                6,
+                4,
+                BLACK.mix(0.6).stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?;
+    }
+    draw_series(&mut chart, series)
+}
+
+/// The curves of one chart, and their legend when labelled.
+fn draw_series<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    series: &'a [Series],
+) -> Result<(), String> {
+    let e = |e: &dyn std::fmt::Display| e.to_string();
     for (k, (label, pts)) in series.iter().enumerate() {
         let color = Palette99::pick(k).to_rgba();
         let band: Vec<(f64, f64)> = pts
@@ -110,12 +186,41 @@ pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), S
     if series.iter().any(|(l, _)| !l.is_empty()) {
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
+            .position(legend_position(series))
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
             .draw()
             .map_err(|x| e(&x))?;
     }
-    root.present().map_err(|x| e(&x))
+    Ok(())
+}
+
+/// An axis label for a step count: `250k`, `1M`, `1.5M`.
+fn steps_label(x: f64) -> String {
+    if x >= 1e6 {
+        format!("{}M", (x / 1e5).round() / 10.0)
+    } else {
+        format!("{:.0}k", x / 1000.0)
+    }
+}
+
+/// Where the legend hides the least: learning curves rise to the right, so below them when
+/// the later half of the points is mostly above the middle of the range, above them otherwise.
+fn legend_position(series: &[Series]) -> SeriesLabelPosition {
+    let xmax = series
+        .iter()
+        .flat_map(|(_, p)| p.iter().map(|q| q.0))
+        .max()
+        .unwrap_or(0);
+    let late: Vec<f64> = series
+        .iter()
+        .flat_map(|(_, p)| p.iter().filter(|q| 2 * q.0 >= xmax).map(|q| q.1))
+        .collect();
+    let high = late.iter().filter(|&&m| m > 500.0).count();
+    if 2 * high >= late.len() {
+        SeriesLabelPosition::LowerRight
+    } else {
+        SeriesLabelPosition::UpperRight
+    }
 }

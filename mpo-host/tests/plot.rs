@@ -1,0 +1,147 @@
+//! `mpo plot --by-task`: runs grouped into one panel per task, target lines, and clear errors
+//! for runs it cannot group. The runs are written by hand (a `metrics.jsonl` and a
+//! `config.toml` naming the task), so no training is needed.
+
+mod common;
+use common::*;
+
+use std::path::{Path, PathBuf};
+
+/// A run directory with `evals` evaluations of `task` rising from 0 by `slope` per 10k steps.
+fn fake_run(root: &Path, name: &str, task: Option<&str>, evals: u64, slope: f64) -> PathBuf {
+    let dir = root.join(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let lines: Vec<String> = (0..evals)
+        .map(|i| {
+            format!(
+                r#"{{"env_steps":{},"eval_return_mean":{},"eval_return_std":{}}}"#,
+                i * 10_000,
+                slope * i as f64,
+                5.0
+            )
+        })
+        .collect();
+    std::fs::write(dir.join("metrics.jsonl"), lines.join("\n")).unwrap();
+    if let Some(t) = task {
+        std::fs::write(
+            dir.join("config.toml"),
+            format!("task = \"{t}\"\nseed = 0\n"),
+        )
+        .unwrap();
+    }
+    dir
+}
+
+/// Width and height from a PNG's IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert!(b.starts_with(b"\x89PNG"), "{} is not a PNG", path.display());
+    let word = |i: usize| u32::from_be_bytes(b[i..i + 4].try_into().unwrap());
+    (word(16), word(20))
+}
+
+fn plot(args: &[&str]) -> std::process::Output {
+    let mut all = vec!["plot"];
+    all.extend_from_slice(args);
+    mpo(&all)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn by_task_draws_one_panel_per_task_and_the_target_line() {
+    let d = scratch("plot-by-task");
+    let a0 = fake_run(&d, "a-s0", Some("walker-walk"), 6, 100.0);
+    let b0 = fake_run(&d, "b-s0", Some("cheetah-run"), 4, 50.0);
+    let a1 = fake_run(&d, "a-s1", Some("walker-walk"), 5, 80.0);
+    // Two tasks (three runs): two panels side by side under the title band.
+    let two = d.join("two.png");
+    let out = plot(&["--by-task", "--out", s(&two), s(&a0), s(&b0), s(&a1)]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(png_size(&two), (960, 360));
+    // Four tasks: three columns, two rows.
+    let c = fake_run(&d, "c", Some("hopper-hop"), 3, 10.0);
+    let e = fake_run(&d, "e", Some("acrobot-swingup"), 3, 10.0);
+    let four = d.join("four.png");
+    let out = plot(&["--by-task", "--out", s(&four), s(&a0), s(&b0), s(&c), s(&e)]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(png_size(&four), (1440, 680));
+    // The same runs with a target line: the same size, other pixels.
+    let lined = d.join("lined.png");
+    let out = plot(&[
+        "--by-task",
+        "--target",
+        "walker-walk=900",
+        "--out",
+        s(&lined),
+        s(&a0),
+        s(&b0),
+        s(&a1),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(png_size(&lined), (960, 360));
+    assert_ne!(std::fs::read(&lined).unwrap(), std::fs::read(&two).unwrap());
+    // Without --by-task the runs share one chart, as before.
+    let one = d.join("one.png");
+    let out = plot(&["--out", s(&one), s(&a0), s(&a1)]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(png_size(&one), (900, 540));
+}
+
+#[test]
+fn by_task_refuses_what_it_cannot_group_or_draw() {
+    let d = scratch("plot-by-task-errors");
+    let a = fake_run(&d, "a", Some("walker-walk"), 3, 100.0);
+    let untasked = fake_run(&d, "untasked", None, 3, 100.0);
+    let png = d.join("x.png");
+    let err = err_text(&plot(&["--by-task", "--out", s(&png), s(&a), s(&untasked)]));
+    assert!(
+        err.contains("untasked") && err.contains("no `task`"),
+        "{err}"
+    );
+    let err = err_text(&plot(&[
+        "--by-task",
+        "--target",
+        "cheetah-run=600",
+        "--out",
+        s(&png),
+        s(&a),
+    ]));
+    assert!(
+        err.contains("none of the runs given is of task cheetah-run"),
+        "{err}"
+    );
+    for bad in ["walker-walk", "walker-walk=high"] {
+        let err = err_text(&plot(&[
+            "--by-task",
+            "--target",
+            bad,
+            "--out",
+            s(&png),
+            s(&a),
+        ]));
+        assert!(err.contains("expected TASK=RETURN"), "{bad}: {err}");
+    }
+    // --target needs --by-task: a usage error (exit status 2).
+    let out = plot(&["--target", "walker-walk=900", "--out", s(&png), s(&a)]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(!png.exists(), "nothing is drawn after an error");
+}
