@@ -176,7 +176,8 @@ pub struct PlotArgs {
     /// Chart title [default: the task of the first run].
     #[arg(long)]
     pub title: Option<String>,
-    /// Run directories (each with metrics.jsonl); each becomes one labelled curve.
+    /// Run directories (each with metrics.jsonl, or metrics.csv); each becomes one curve,
+    /// labelled with the directory's name.
     #[arg(required = true, value_name = "RUN_DIR")]
     pub runs: Vec<PathBuf>,
     /// One panel per task (read from each run's config.toml), in the order the tasks first
@@ -187,6 +188,11 @@ pub struct PlotArgs {
     /// Repeat for several tasks.
     #[arg(long, value_name = "TASK=RETURN", requires = "by_task")]
     pub target: Vec<String>,
+    /// With --by-task: TASK's panel spans STEPS environment steps (its budget) even where its
+    /// runs stop earlier, so a run's length reads against the budget, e.g.
+    /// `--budget walker-run=1000000`. Repeat for several tasks.
+    #[arg(long, value_name = "TASK=STEPS", requires = "by_task")]
+    pub budget: Vec<String>,
 }
 
 /// `mpo train`.

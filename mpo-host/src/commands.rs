@@ -836,38 +836,81 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
                 title: task,
                 series: vec![(label, pts)],
                 target: None,
+                budget: None,
             }),
         }
     }
     for t in &args.target {
-        let bad = || {
-            Error::Plot(format!(
-                "--target {t}: expected TASK=RETURN, e.g. walker-walk=900"
-            ))
-        };
-        let (task, value) = t.split_once('=').ok_or_else(bad)?;
-        let value: f64 = value.trim().parse().map_err(|_| bad())?;
-        let panel = panels
-            .iter_mut()
-            .find(|p| p.title == task.trim())
-            .ok_or_else(|| {
-                Error::Plot(format!(
-                    "--target {t}: none of the runs given is of task {task}"
-                ))
-            })?;
+        let (panel, value) =
+            panel_setting(&mut panels, "--target", "RETURN", "walker-walk=900", t)?;
         panel.target = Some(value);
+    }
+    for t in &args.budget {
+        let (panel, value) =
+            panel_setting(&mut panels, "--budget", "STEPS", "walker-run=1000000", t)?;
+        if !(value >= 1.0 && value <= 1e12) {
+            return Err(Error::Plot(format!(
+                "--budget {t}: STEPS must be at least 1"
+            )));
+        }
+        panel.budget = Some(value as u64);
     }
     let title = args.title.clone().unwrap_or_else(|| "MPO".to_string());
     crate::plot::write_panels(&args.out, &title, &panels).map_err(Error::Plot)
 }
 
+/// `TASK=VALUE` of `flag`: the panel of TASK and the value, or an error naming the flag.
+fn panel_setting<'a>(
+    panels: &'a mut [crate::plot::Panel],
+    flag: &str,
+    what: &str,
+    example: &str,
+    arg: &str,
+) -> Result<(&'a mut crate::plot::Panel, f64), Error> {
+    let bad = || {
+        Error::Plot(format!(
+            "{flag} {arg}: expected TASK={what}, e.g. {example}"
+        ))
+    };
+    let (task, value) = arg.split_once('=').ok_or_else(bad)?;
+    let value: f64 = value.trim().parse().map_err(|_| bad())?;
+    let panel = panels
+        .iter_mut()
+        .find(|p| p.title == task.trim())
+        .ok_or_else(|| {
+            Error::Plot(format!(
+                "{flag} {arg}: none of the runs given is of task {}",
+                task.trim()
+            ))
+        })?;
+    Ok((panel, value))
+}
+
 /// One run's curve: its label (the directory's name), `(env_steps, mean, std)` per evaluation
-/// from `metrics.jsonl`, and its task from `config.toml` when there is one.
+/// from `metrics.jsonl` (or `metrics.csv` without it), and its task from `config.toml` when there is one.
 type RunCurve = (String, Vec<(u64, f64, f64)>, Option<String>);
 
 fn read_run_curve(dir: &std::path::Path) -> Result<RunCurve, Error> {
-    let path = dir.join("metrics.jsonl");
-    let text = std::fs::read_to_string(&path)
+    let jsonl = dir.join("metrics.jsonl");
+    let csv = dir.join("metrics.csv");
+    let pts = if jsonl.exists() || !csv.exists() {
+        jsonl_points(&jsonl)?
+    } else {
+        csv_points(&csv)?
+    };
+    let task = settings::read_table(&dir.join("config.toml"))
+        .ok()
+        .and_then(|t| str_value(&t, "task"));
+    let label = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| dir.display().to_string());
+    Ok((label, pts, task))
+}
+
+/// `(env_steps, mean, std)` per line of a `metrics.jsonl`.
+fn jsonl_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
+    let text = std::fs::read_to_string(path)
         .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
     let mut pts = Vec::new();
     for (i, line) in text.lines().enumerate() {
@@ -888,12 +931,43 @@ fn read_run_curve(dir: &std::path::Path) -> Result<RunCurve, Error> {
             get("eval_return_std")?,
         ));
     }
-    let task = settings::read_table(&dir.join("config.toml"))
-        .ok()
-        .and_then(|t| str_value(&t, "task"));
-    let label = dir
-        .file_name()
-        .map(|n| n.to_string_lossy().to_string())
-        .unwrap_or_else(|| dir.display().to_string());
-    Ok((label, pts, task))
+    Ok(pts)
+}
+
+/// The same from a `metrics.csv` (for run directories kept without their JSON lines): the
+/// columns found by name in the header, as `metrics::write_all` writes them (no quoting).
+fn csv_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let col = |k: &str| {
+        header.iter().position(|h| *h == k).ok_or_else(|| {
+            Error::Plot(format!("{}: no column `{k}` in the header", path.display()))
+        })
+    };
+    let cols = [
+        col("env_steps")?,
+        col("eval_return_mean")?,
+        col("eval_return_std")?,
+    ];
+    let mut pts = Vec::new();
+    for (i, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        let mut v = [0.0; 3];
+        for (x, &c) in v.iter_mut().zip(&cols) {
+            *x = cells
+                .get(c)
+                .and_then(|s| s.trim().parse().ok())
+                .ok_or_else(|| {
+                    Error::Plot(format!(
+                        "{} line {}: column {c} is not a number",
+                        path.display(),
+                        i + 2
+                    ))
+                })?;
+        }
+        pts.push((v[0] as u64, v[1], v[2]));
+    }
+    Ok(pts)
 }

@@ -55,6 +55,8 @@ pub struct Panel {
     pub series: Vec<Series>,
     /// Where to draw the target line, if anywhere.
     pub target: Option<f64>,
+    /// The step axis's end when the runs stop before it (the task's budget).
+    pub budget: Option<u64>,
 }
 
 /// Draws several learning curves (e.g. seeds) into one chart, with a legend when labelled.
@@ -64,7 +66,13 @@ pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), S
     }
     let root = BitMapBackend::new(path, (900, 540)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| x.to_string())?;
-    draw_panel(&root, title, series, None, 22)?;
+    let panel = Panel {
+        title: title.to_string(),
+        series: series.to_vec(),
+        target: None,
+        budget: None,
+    };
+    draw_panel(&root, &panel, 22)?;
     root.present().map_err(|x| x.to_string())
 }
 
@@ -95,24 +103,29 @@ pub fn write_panels(path: &Path, title: &str, panels: &[Panel]) -> Result<(), St
         .titled(title, ("sans-serif", 24))
         .map_err(|x| x.to_string())?;
     for (p, area) in panels.iter().zip(body.split_evenly((rows, cols))) {
-        draw_panel(&area, &p.title, &p.series, p.target, 16)?;
+        draw_panel(&area, p, 16)?;
     }
     root.present().map_err(|x| x.to_string())
 }
 
 /// One chart in `area`: each series as its mean line, points and +-1 std band, the x axis to
-/// the longest series, the y axis the Control Suite's 0-1000 return range.
+/// the longest series or the budget, the y axis the Control Suite's 0-1000 return range.
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
-    title: &str,
-    series: &[Series],
-    target: Option<f64>,
+    panel: &Panel,
     caption: u32,
 ) -> Result<(), String> {
+    let Panel {
+        title,
+        series,
+        target,
+        budget,
+    } = panel;
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let xmax = series
         .iter()
         .flat_map(|(_, p)| p.iter().map(|q| q.0))
+        .chain(*budget)
         .max()
         .unwrap_or(1)
         .max(1) as f64;
@@ -132,7 +145,7 @@ fn draw_panel(
         .y_label_formatter(&|y| format!("{y:.0}"))
         .draw()
         .map_err(|x| e(&x))?;
-    if let Some(y) = target {
+    if let &Some(y) = target {
         chart
             .draw_series(DashedLineSeries::new(
                 [(0.0, y), (xmax, y)],

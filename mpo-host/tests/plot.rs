@@ -95,6 +95,67 @@ fn by_task_draws_one_panel_per_task_and_the_target_line() {
     );
     assert_eq!(png_size(&lined), (960, 360));
     assert_ne!(std::fs::read(&lined).unwrap(), std::fs::read(&two).unwrap());
+    // A budget longer than the runs widens the panel's step axis: other pixels again; one no
+    // longer than the longest run changes nothing.
+    let budgeted = d.join("budgeted.png");
+    let short = d.join("short-budget.png");
+    for (budget, png) in [
+        ("cheetah-run=100000", &budgeted),
+        ("cheetah-run=30000", &short),
+    ] {
+        let out = plot(&[
+            "--by-task",
+            "--budget",
+            budget,
+            "--out",
+            s(png),
+            s(&a0),
+            s(&b0),
+            s(&a1),
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_ne!(
+        std::fs::read(&budgeted).unwrap(),
+        std::fs::read(&two).unwrap()
+    );
+    assert_eq!(std::fs::read(&short).unwrap(), std::fs::read(&two).unwrap());
+    // A run kept with only its metrics.csv draws the same pixels as from its JSON lines.
+    let csv_only = d.join("csv").join("a-s0");
+    std::fs::create_dir_all(&csv_only).unwrap();
+    let mut csv = String::from("env_steps,updates,eval_return_mean,eval_return_std\n");
+    for i in 0..6u64 {
+        csv.push_str(&format!(
+            "{},{},{},5\n",
+            i * 10_000,
+            i * 100,
+            100.0 * i as f64
+        ));
+    }
+    std::fs::write(csv_only.join("metrics.csv"), csv).unwrap();
+    std::fs::copy(a0.join("config.toml"), csv_only.join("config.toml")).unwrap();
+    let from_csv = d.join("from-csv.png");
+    let out = plot(&[
+        "--by-task",
+        "--out",
+        s(&from_csv),
+        s(&csv_only),
+        s(&b0),
+        s(&a1),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        std::fs::read(&from_csv).unwrap(),
+        std::fs::read(&two).unwrap()
+    );
     // Without --by-task the runs share one chart, as before.
     let one = d.join("one.png");
     let out = plot(&["--out", s(&one), s(&a0), s(&a1)]);
@@ -139,6 +200,20 @@ fn by_task_refuses_what_it_cannot_group_or_draw() {
             s(&a),
         ]));
         assert!(err.contains("expected TASK=RETURN"), "{bad}: {err}");
+    }
+    for bad in ["walker-walk=x", "walker-walk=0", "walker-walk"] {
+        let err = err_text(&plot(&[
+            "--by-task",
+            "--budget",
+            bad,
+            "--out",
+            s(&png),
+            s(&a),
+        ]));
+        assert!(
+            err.contains("--budget") && err.contains("STEPS"),
+            "{bad}: {err}"
+        );
     }
     // --target needs --by-task: a usage error (exit status 2).
     let out = plot(&["--target", "walker-walk=900", "--out", s(&png), s(&a)]);

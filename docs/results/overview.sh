@@ -1,0 +1,36 @@
+#!/bin/sh
+# docs/results/overview.png: every task's runs at its row's current default, one panel per
+# task over its step budget, the issue-13 targets as dashed lines. Run from the repository root after a release
+# build: docs/results/overview.sh [MPO_BINARY]
+set -eu
+mpo=${1:-target/release/mpo}
+r=docs/results
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+# link TASK SEED DIR: the run DIR as the curve "seedSEED" in TASK's panel
+link() { mkdir -p "$tmp/$1"; ln -s "$PWD/$r/$1/$3" "$tmp/$1/seed$2"; }
+for s in 0 1 2 3 4; do link cartpole-balance $s clip-dual-1e-3-seed$s; done
+link cartpole-swingup 0 default-seed0
+for s in 0 1 2; do link pendulum-swingup $s clip-critic-actions-seed$s; done
+for s in 0 1 2; do link walker-stand $s default-seed$s; done
+for s in 0 1 2; do link walker-walk $s default-seed$s; done
+link walker-run 0 default-seed0
+for s in 0 1 2; do link cheetah-run $s default-seed$s; done
+link hopper-stand 0 noise-0.95-seed0
+link hopper-stand 1 noise-0.95-seed1
+link hopper-stand 2 default-seed2-559k
+link hopper-hop 0 noise-0.95-seed0
+link acrobot-swingup 0 noise-0.95-seed0
+set --
+for t in cartpole-balance cartpole-swingup pendulum-swingup walker-stand walker-walk walker-run \
+    cheetah-run hopper-stand hopper-hop acrobot-swingup; do
+    set -- "$@" "$tmp/$t"/seed*
+done
+LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}:$PWD/.deps/mujoco "$mpo" plot --by-task \
+    --title "MPO (this repository) on the Control Suite: evaluation return, every seed run at each row's default" \
+    --target cartpole-balance=900 --target cartpole-swingup=800 --target pendulum-swingup=750 \
+    --target walker-stand=950 --target walker-walk=900 --target walker-run=500 \
+    --target cheetah-run=600 --target hopper-stand=700 --target hopper-hop=100 \
+    --budget cartpole-swingup=200000 --budget walker-walk=500000 --budget walker-run=1000000 \
+    --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget acrobot-swingup=1000000 \
+    --out "$r/overview.png" "$@"
