@@ -848,9 +848,9 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
     for t in &args.budget {
         let (panel, value) =
             panel_setting(&mut panels, "--budget", "STEPS", "walker-run=1000000", t)?;
-        if !(value >= 1.0 && value <= 1e12) {
+        if !(1.0..=1e12).contains(&value) {
             return Err(Error::Plot(format!(
-                "--budget {t}: STEPS must be at least 1"
+                "--budget {t}: STEPS must be from 1 to 10^12"
             )));
         }
         panel.budget = Some(value as u64);
