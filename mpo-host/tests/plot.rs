@@ -50,121 +50,72 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `mpo plot ARGS --out d/NAME`, which must succeed: the image's bytes and its size.
+fn draw(d: &Path, name: &str, args: &[&str]) -> (Vec<u8>, (u32, u32)) {
+    let png = d.join(name);
+    let mut all = args.to_vec();
+    all.extend_from_slice(&["--out", s(&png)]);
+    let out = plot(&all);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (std::fs::read(&png).unwrap(), png_size(&png))
+}
+
 #[test]
 fn by_task_draws_one_panel_per_task_and_the_target_line() {
     let d = scratch("plot-by-task");
     let a0 = fake_run(&d, "a-s0", Some("walker-walk"), 6, 100.0);
     let b0 = fake_run(&d, "b-s0", Some("cheetah-run"), 4, 50.0);
     let a1 = fake_run(&d, "a-s1", Some("walker-walk"), 5, 80.0);
+    let runs = [s(&a0), s(&b0), s(&a1)];
+    let with = |extra: &[&'static str]| [extra, &runs[..]].concat();
     // Two tasks (three runs): two panels side by side under the title band.
-    let two = d.join("two.png");
-    let out = plot(&["--by-task", "--out", s(&two), s(&a0), s(&b0), s(&a1)]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert_eq!(png_size(&two), (960, 360));
+    let (two, size) = draw(&d, "two.png", &with(&["--by-task"]));
+    assert_eq!(size, (960, 360));
     // Four tasks: three columns, two rows.
     let c = fake_run(&d, "c", Some("hopper-hop"), 3, 10.0);
     let e = fake_run(&d, "e", Some("acrobot-swingup"), 3, 10.0);
-    let four = d.join("four.png");
-    let out = plot(&["--by-task", "--out", s(&four), s(&a0), s(&b0), s(&c), s(&e)]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let four = ["--by-task", s(&a0), s(&b0), s(&c), s(&e)];
+    assert_eq!(draw(&d, "four.png", &four).1, (1440, 680));
+    // A target line: the same size, other pixels.
+    let (lined, size) = draw(
+        &d,
+        "lined.png",
+        &with(&["--by-task", "--target", "walker-walk=900"]),
     );
-    assert_eq!(png_size(&four), (1440, 680));
-    // The same runs with a target line: the same size, other pixels.
-    let lined = d.join("lined.png");
-    let out = plot(&[
-        "--by-task",
-        "--target",
-        "walker-walk=900",
-        "--out",
-        s(&lined),
-        s(&a0),
-        s(&b0),
-        s(&a1),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert_eq!(png_size(&lined), (960, 360));
-    assert_ne!(std::fs::read(&lined).unwrap(), std::fs::read(&two).unwrap());
+    assert_eq!(size, (960, 360));
+    assert_ne!(lined, two);
     // A budget longer than the runs widens the panel's step axis: other pixels again; one no
     // longer than the longest run changes nothing.
-    let budgeted = d.join("budgeted.png");
-    let short = d.join("short-budget.png");
-    for (budget, png) in [
-        ("cheetah-run=100000", &budgeted),
-        ("cheetah-run=30000", &short),
-    ] {
-        let out = plot(&[
-            "--by-task",
-            "--budget",
-            budget,
-            "--out",
-            s(png),
-            s(&a0),
-            s(&b0),
-            s(&a1),
-        ]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
-    assert_ne!(
-        std::fs::read(&budgeted).unwrap(),
-        std::fs::read(&two).unwrap()
+    let wide = draw(
+        &d,
+        "b1.png",
+        &with(&["--by-task", "--budget", "cheetah-run=100000"]),
     );
-    assert_eq!(std::fs::read(&short).unwrap(), std::fs::read(&two).unwrap());
+    assert_ne!(wide.0, two);
+    let same = draw(
+        &d,
+        "b2.png",
+        &with(&["--by-task", "--budget", "cheetah-run=30000"]),
+    );
+    assert_eq!(same.0, two);
     // A run kept with only its metrics.csv draws the same pixels as from its JSON lines.
     let csv_only = d.join("csv").join("a-s0");
     std::fs::create_dir_all(&csv_only).unwrap();
     let mut csv = String::from("env_steps,updates,eval_return_mean,eval_return_std\n");
     for i in 0..6u64 {
-        csv.push_str(&format!(
-            "{},{},{},5\n",
-            i * 10_000,
-            i * 100,
-            100.0 * i as f64
-        ));
+        let (x, u, m) = (i * 10_000, i * 100, 100.0 * i as f64);
+        csv.push_str(&format!("{x},{u},{m},5\n"));
     }
     std::fs::write(csv_only.join("metrics.csv"), csv).unwrap();
     std::fs::copy(a0.join("config.toml"), csv_only.join("config.toml")).unwrap();
-    let from_csv = d.join("from-csv.png");
-    let out = plot(&[
-        "--by-task",
-        "--out",
-        s(&from_csv),
-        s(&csv_only),
-        s(&b0),
-        s(&a1),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert_eq!(
-        std::fs::read(&from_csv).unwrap(),
-        std::fs::read(&two).unwrap()
-    );
+    let from_csv = draw(&d, "csv.png", &["--by-task", s(&csv_only), s(&b0), s(&a1)]);
+    assert_eq!(from_csv.0, two);
     // Without --by-task the runs share one chart, as before.
-    let one = d.join("one.png");
-    let out = plot(&["--out", s(&one), s(&a0), s(&a1)]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert_eq!(png_size(&one), (900, 540));
+    assert_eq!(draw(&d, "one.png", &[s(&a0), s(&a1)]).1, (900, 540));
 }
 
 #[test]
@@ -173,43 +124,29 @@ fn by_task_refuses_what_it_cannot_group_or_draw() {
     let a = fake_run(&d, "a", Some("walker-walk"), 3, 100.0);
     let untasked = fake_run(&d, "untasked", None, 3, 100.0);
     let png = d.join("x.png");
-    let err = err_text(&plot(&["--by-task", "--out", s(&png), s(&a), s(&untasked)]));
+    // `mpo plot --by-task FLAG VALUE --out x.png RUNS...` must fail (status 1): its stderr.
+    let refused = |flag: &str, value: &str, runs: &[&Path]| {
+        let mut args = vec!["--by-task", flag, value, "--out", s(&png)];
+        args.retain(|x| !x.is_empty());
+        args.extend(runs.iter().map(|r| s(r)));
+        err_text(&plot(&args))
+    };
+    let err = refused("", "", &[&a, &untasked]);
     assert!(
         err.contains("untasked") && err.contains("no `task`"),
         "{err}"
     );
-    let err = err_text(&plot(&[
-        "--by-task",
-        "--target",
-        "cheetah-run=600",
-        "--out",
-        s(&png),
-        s(&a),
-    ]));
+    let err = refused("--target", "cheetah-run=600", &[&a]);
     assert!(
         err.contains("none of the runs given is of task cheetah-run"),
         "{err}"
     );
     for bad in ["walker-walk", "walker-walk=high"] {
-        let err = err_text(&plot(&[
-            "--by-task",
-            "--target",
-            bad,
-            "--out",
-            s(&png),
-            s(&a),
-        ]));
+        let err = refused("--target", bad, &[&a]);
         assert!(err.contains("expected TASK=RETURN"), "{bad}: {err}");
     }
     for bad in ["walker-walk=x", "walker-walk=0", "walker-walk"] {
-        let err = err_text(&plot(&[
-            "--by-task",
-            "--budget",
-            bad,
-            "--out",
-            s(&png),
-            s(&a),
-        ]));
+        let err = refused("--budget", bad, &[&a]);
         assert!(
             err.contains("--budget") && err.contains("STEPS"),
             "{bad}: {err}"
