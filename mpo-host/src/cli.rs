@@ -173,7 +173,7 @@ pub struct PlotArgs {
     /// Output PNG.
     #[arg(long, value_name = "FILE.png")]
     pub out: PathBuf,
-    /// Chart title [default: the task of the first run].
+    /// Chart title [default: "MPO <the first run's task>"; with --by-task, "MPO"].
     #[arg(long)]
     pub title: Option<String>,
     /// Run directories (each with metrics.jsonl, or metrics.csv); each becomes one curve,
