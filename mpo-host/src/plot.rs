@@ -76,17 +76,11 @@ pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), S
     root.present().map_err(|x| x.to_string())
 }
 
-/// Columns of the grid of `n` panels: up to three in a row, so ten tasks make four rows that
-/// still read on a laptop screen.
-pub fn grid_columns(n: usize) -> usize {
-    n.clamp(1, 3)
-}
-
-/// Pixel size of the image of `n` panels (480 x 320 each, and a 40-pixel title band).
-pub fn grid_size(n: usize) -> (u32, u32) {
-    let cols = grid_columns(n);
-    let rows = n.max(1).div_ceil(cols);
-    (480 * cols as u32, 320 * rows as u32 + 40)
+/// Rows and columns of the grid of `n` panels: up to three in a row, so ten tasks make four
+/// rows that still read on a laptop screen.
+fn grid_shape(n: usize) -> (usize, usize) {
+    let cols = n.clamp(1, 3);
+    (n.max(1).div_ceil(cols), cols)
 }
 
 /// Draws one panel per entry of `panels` in a grid under one title: several tasks' curves at a
@@ -95,9 +89,10 @@ pub fn write_panels(path: &Path, title: &str, panels: &[Panel]) -> Result<(), St
     if !register_font() {
         return Err(format!("no TrueType font found (tried {FONT_PATHS:?})"));
     }
-    let cols = grid_columns(panels.len());
-    let rows = panels.len().max(1).div_ceil(cols);
-    let root = BitMapBackend::new(path, grid_size(panels.len())).into_drawing_area();
+    let (rows, cols) = grid_shape(panels.len());
+    // 480 x 320 pixels a panel, and a 40-pixel band for the title.
+    let size = (480 * cols as u32, 320 * rows as u32 + 40);
+    let root = BitMapBackend::new(path, size).into_drawing_area();
     root.fill(&WHITE).map_err(|x| x.to_string())?;
     let body = root
         .titled(title, ("sans-serif", 24))
