@@ -18,7 +18,7 @@ def main():
     args = sys.argv[1:]
     target, label, at = 900.0, None, None
     if not args or args[0] in ("-h", "--help"):
-        print(__doc__.strip())
+        print(__doc__.strip(), file=sys.stdout if args else sys.stderr)
         sys.exit(0 if args else 2)
     while args and args[0].startswith("--"):
         if args[0] == "--target":
