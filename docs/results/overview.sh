@@ -10,7 +10,7 @@ trap 'rm -rf "$tmp"' EXIT
 # link TASK SEED DIR: the run DIR as the curve "seedSEED" in TASK's panel
 link() { mkdir -p "$tmp/$1"; ln -s "$PWD/$r/$1/$3" "$tmp/$1/seed$2"; }
 for s in 0 1 2 3 4; do link cartpole-balance $s clip-dual-1e-3-seed$s; done
-link cartpole-swingup 0 default-seed0
+for s in 0 1 2; do link cartpole-swingup $s default-seed$s; done
 for s in 0 1 2; do link pendulum-swingup $s clip-critic-actions-seed$s; done
 for s in 0 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
