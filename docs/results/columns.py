@@ -9,8 +9,9 @@ run without an evaluation at STEP is listed as "no evaluation at STEP" rather th
 the table always has every run asked for. Column names: the header of any metrics.csv
 (docs/training.md, "Commands", lists them).
 """
-import csv
 import sys
+
+import runs
 
 
 def value(row, col):
@@ -20,9 +21,7 @@ def value(row, col):
 
 def main():
     args = sys.argv[1:]
-    if not args or args[0] in ("-h", "--help"):
-        print(__doc__.strip(), file=sys.stdout if args else sys.stderr)
-        sys.exit(0 if args else 2)
+    runs.help_or_usage(__doc__, args)
     cols, at = None, None
     while args and args[0].startswith("--"):
         if args[0] == "--cols" and len(args) > 1:
@@ -37,11 +36,12 @@ def main():
     print("| run | step | " + " | ".join(cols) + " |")
     print("|---|---:|" + "---:|" * len(cols))
     for d in args:
-        rows = list(csv.DictReader(open(f"{d.rstrip('/')}/metrics.csv")))
-        row = rows[-1] if at is None else next((r for r in rows if int(r["env_steps"]) == at), None)
-        if row is None:
+        rows = runs.read_rows(d)
+        i = len(rows) - 1 if at is None else runs.index_at(rows, at)
+        if i is None:
             print(f"| {d} | no evaluation at {at} |" + " |" * len(cols))
             continue
+        row = rows[i]
         print(f"| {d} | {row['env_steps']} | " + " | ".join(value(row, c) for c in cols) + " |")
 
 

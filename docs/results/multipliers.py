@@ -7,13 +7,13 @@ have `alpha_cov` (the mean over the updates before the evaluation) above X (defa
 first step where it is, the largest `alpha_cov`, the actor's gradient norm range at those
 evaluations, `std_max` at the last evaluation and the last evaluation's return.
 """
-import csv
 import sys
+
+import runs
 
 
 def row(run, above):
-    with open(f"{run}/metrics.csv", newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r["alpha_cov"]]
+    rows = [r for r in runs.read_rows(run) if r["alpha_cov"]]
     if not rows:
         return f"| {run} | no updates yet | | | | | |"
     wound = [r for r in rows if float(r["alpha_cov"]) > above]

@@ -9,17 +9,16 @@ the evaluation of environment step STEP (so runs stopped at different steps comp
 budget; a run without that evaluation is an error). With several runs, a last row gives the final
 evaluation's mean +- standard deviation over the runs (population std, as the evaluation's).
 """
-import csv
 import statistics
 import sys
+
+import runs
 
 
 def main():
     args = sys.argv[1:]
     target, label, at = 900.0, None, None
-    if not args or args[0] in ("-h", "--help"):
-        print(__doc__.strip(), file=sys.stdout if args else sys.stderr)
-        sys.exit(0 if args else 2)
+    runs.help_or_usage(__doc__, args)
     while args and args[0].startswith("--"):
         if args[0] == "--target":
             target = float(args[1])
@@ -35,12 +34,12 @@ def main():
     print("|---|---|---|---|---|---|---|---|---|")
     finals = []
     for d in args:
-        rows = list(csv.DictReader(open(f"{d}/metrics.csv")))
+        rows = runs.read_rows(d)
         if at is not None:
-            cut = [r for r in rows if int(r["env_steps"]) <= at]
-            if not cut or int(cut[-1]["env_steps"]) != at:
+            i = runs.index_at(rows, at)
+            if i is None:
                 sys.exit(f"{d}: no evaluation at environment step {at}")
-            rows = cut
+            rows = rows[: i + 1]
         first = next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
         last = rows[-1]
         best = max(float(r["eval_return_mean"]) for r in rows)
