@@ -16,9 +16,7 @@ for s in 0 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
 link walker-run 0 default-seed0
 for s in 0 1 2; do link cheetah-run $s default-seed$s; done
-link hopper-stand 0 noise-0.95-seed0
-link hopper-stand 1 noise-0.95-seed1
-link hopper-stand 2 default-seed2-559k
+for s in 0 1 2; do link hopper-stand $s eps-penalty-0.01-seed$s; done
 link hopper-hop 0 noise-0.95-seed0
 link acrobot-swingup 0 noise-0.95-seed0
 set --
