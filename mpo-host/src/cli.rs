@@ -227,6 +227,11 @@ pub struct TrainArgs {
     /// No progress bar (it is also hidden when stderr is not a terminal).
     #[arg(long)]
     pub no_progress: bool,
+    /// Print the resolved configuration (the config.toml this command would write: the task
+    /// table row's defaults under --config, --set and the flags, or the resumed run's) and exit
+    /// without training.
+    #[arg(long)]
+    pub print_config: bool,
     /// Threads of the learner [default: every available CPU]. The results are bit-identical
     /// for any number: only the speed changes.
     #[arg(long, value_name = "N")]

@@ -184,6 +184,22 @@ pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Veri
     Ok((s, out, None))
 }
 
+/// `mpo train --print-config`: the `config.toml` that `mpo train` with the same flags would
+/// write (a fresh run's, or with `--resume` the resumed run's), without training or touching
+/// any run directory, so a row's defaults and the effect of `--config`/`--set` can be read
+/// before hours of training.
+pub fn print_config(args: &TrainArgs) -> Result<String, Error> {
+    let layers = layers(args)?;
+    let s = match &args.resume {
+        Some(dir) => {
+            let v = open_checkpoint(dir)?;
+            resolve_resumed(&v.meta, &v.dir, &layers)?
+        }
+        None => resolve_fresh(&layers)?,
+    };
+    Ok(s.config_toml(&tasks::row(&s.task, &s.net)?.sizes))
+}
+
 /// A fresh run's configuration: the task table row's defaults under `layers` (see
 /// [`layers_from`]), validated. Reads no files.
 pub fn resolve_fresh(layers: &[(String, toml::Table)]) -> Result<Settings, Error> {

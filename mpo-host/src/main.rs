@@ -13,6 +13,10 @@ static INTERRUPT: AtomicBool = AtomicBool::new(false);
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
+        Command::Train(args) if args.print_config => {
+            print!("{}", commands::print_config(&args)?);
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Train(args) => {
             ctrlc::set_handler(|| {
                 if INTERRUPT.swap(true, Ordering::SeqCst) {

@@ -363,6 +363,18 @@ impl Settings {
         toml::Table::try_from(self).expect("settings serialise to TOML")
     }
 
+    /// The text of a run's `config.toml` (also what `mpo train --print-config` prints): these
+    /// settings with `network` set to `sizes`, under a header that says how to repeat the run.
+    pub fn config_toml(&self, sizes: &Sizes) -> String {
+        let mut resolved = self.clone();
+        resolved.network = Some(*sizes);
+        format!(
+            "# Resolved configuration of this run (task table defaults, --config, flags).\n\
+             # `mpo train --config config.toml --out NEW` repeats it; [network] is fixed by the task table.\n{}",
+            toml::to_string(&resolved).expect("settings serialise")
+        )
+    }
+
     /// From a merged table (type errors name `origin`).
     pub fn from_table(t: toml::Table, origin: &str) -> Result<Self, SettingsError> {
         toml::Value::Table(t)

@@ -720,14 +720,8 @@ fn run<
         None => (Vec::new(), 0.0, None),
     };
     std::fs::create_dir_all(&out).map_err(io_err(&out))?;
-    let mut resolved = settings.clone();
-    resolved.network = Some(row.sizes);
     let cfg_path = out.join("config.toml");
-    let text = format!(
-        "# Resolved configuration of this run (task table defaults, --config, flags).\n\
-         # `mpo train --config config.toml --out NEW` repeats it; [network] is fixed by the task table.\n{}",
-        toml::to_string(&resolved).expect("settings serialise")
-    );
+    let text = settings.config_toml(&row.sizes);
     metrics::write_atomic(&cfg_path, text.as_bytes()).map_err(io_err(&cfg_path))?;
 
     let started = Instant::now();

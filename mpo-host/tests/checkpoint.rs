@@ -1,5 +1,6 @@
 //! Checkpoint round trip: what is restored saves back to the same bytes; the files are plain
 //! safetensors with real shapes; `mpo eval` on a checkpoint repeats the run's evaluation.
+//! Also the listings that read no checkpoint: `mpo tasks`, `mpo train --print-config`.
 
 mod common;
 use common::*;
@@ -109,4 +110,62 @@ fn tasks_lists_sizes() {
     let line = s.lines().find(|l| l.starts_with("hopper-stand")).unwrap();
     let cols: Vec<&str> = line.split_whitespace().collect();
     assert_eq!(&cols[1..3], &["15", "4"]);
+}
+
+#[test]
+fn print_config_is_the_config_toml_the_run_writes() {
+    let d = scratch("print-config");
+    let run = d.join("run");
+    let flags = ["--seed", "3", "--set", "mpo.actor_lr=2e-4"];
+    let printed = tiny(&run, 1000, &[&flags[..], &["--print-config"]].concat());
+    assert!(printed.status.success(), "{printed:?}");
+    assert!(!run.exists(), "--print-config created the run directory");
+    ok_json(&tiny(&run, 1000, &flags));
+    let written = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert_eq!(String::from_utf8(printed.stdout).unwrap(), written);
+
+    // Resumed: the checkpoint's configuration with the new step count; a changed setting is
+    // refused as it would be by the run itself.
+    let dir = run.to_str().unwrap();
+    let out = mpo(&[
+        "train",
+        "--resume",
+        dir,
+        "--steps",
+        "3000",
+        "--print-config",
+    ]);
+    assert!(out.status.success(), "{out:?}");
+    let resumed = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(
+        resumed,
+        written.replace("\nsteps = 1000\n", "\nsteps = 3000\n")
+    );
+    assert_ne!(resumed, written);
+    let refused = mpo(&[
+        "train",
+        "--resume",
+        dir,
+        "--set",
+        "mpo.actor_lr=1e-3",
+        "--print-config",
+    ]);
+    assert!(err_text(&refused).contains("actor_lr"));
+}
+
+#[test]
+fn print_config_shows_the_row_and_the_overrides() {
+    let table = |args: &[&str]| -> toml::Table {
+        let out = mpo(&[&["train", "--print-config"], args].concat());
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8(out.stdout).unwrap().parse().unwrap()
+    };
+    let penalty = |t: &toml::Table| t["mpo"]["eps_penalty"].as_float().unwrap();
+    let stand = table(&["--task", "hopper-stand"]);
+    assert_eq!(stand["task"].as_str(), Some("hopper-stand"));
+    assert_eq!(stand["network"]["obs"].as_integer(), Some(15));
+    assert_eq!(penalty(&stand), 0.01);
+    assert_eq!(penalty(&table(&["--task", "hopper-hop"])), 0.1);
+    let set = table(&["--task", "hopper-stand", "--set", "mpo.eps_penalty=0.05"]);
+    assert_eq!(penalty(&set), 0.05);
 }
