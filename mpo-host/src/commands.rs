@@ -810,6 +810,7 @@ pub fn tasks_listing() -> String {
             ));
         }
     }
+    s.push_str("\nA row's whole configuration: mpo train --task T [--net N] --print-config\n");
     s
 }
 

@@ -110,6 +110,10 @@ fn tasks_lists_sizes() {
     let line = s.lines().find(|l| l.starts_with("hopper-stand")).unwrap();
     let cols: Vec<&str> = line.split_whitespace().collect();
     assert_eq!(&cols[1..3], &["15", "4"]);
+    assert!(
+        s.contains("--print-config"),
+        "the listing points to the rows' settings"
+    );
 }
 
 #[test]
