@@ -169,7 +169,7 @@ fn print_config_shows_the_row_and_the_overrides() {
     assert_eq!(stand["task"].as_str(), Some("hopper-stand"));
     assert_eq!(stand["network"]["obs"].as_integer(), Some(15));
     assert_eq!(penalty(&stand), 0.01);
-    assert_eq!(penalty(&table(&["--task", "hopper-hop"])), 0.1);
+    assert_eq!(penalty(&table(&["--task", "walker-stand"])), 0.1);
     let set = table(&["--task", "hopper-stand", "--set", "mpo.eps_penalty=0.05"]);
     assert_eq!(penalty(&set), 0.05);
 }
