@@ -161,19 +161,29 @@ fn episode_steps(task: &str) -> Result<u64, Error> {
     Ok(sim_bridge::task_spec(task)?.episode_steps as u64)
 }
 
+/// The configuration of `mpo train` with these flags: a fresh run's, or with `--resume` the
+/// resumed run's (with its verified checkpoint).
+fn resolve_settings(args: &TrainArgs) -> Result<(Settings, Option<Verified>), Error> {
+    let layers = layers(args)?;
+    match &args.resume {
+        Some(dir) => {
+            let v = open_checkpoint(dir)?;
+            Ok((resolve_resumed(&v.meta, &v.dir, &layers)?, Some(v)))
+        }
+        None => Ok((resolve_fresh(&layers)?, None)),
+    }
+}
+
 /// Resolves the configuration of `mpo train` (fresh or resumed) and where it writes.
 pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Verified>), Error> {
-    let layers = layers(args)?;
-    if let Some(dir) = &args.resume {
-        let v = open_checkpoint(dir)?;
-        let s = resolve_resumed(&v.meta, &v.dir, &layers)?;
+    let (s, resumed) = resolve_settings(args)?;
+    if let Some(v) = resumed {
         let out = args
             .out
             .clone()
             .unwrap_or_else(|| checkpoint::run_dir_of(&v.dir));
         return Ok((s, out, Some(v)));
     }
-    let s = resolve_fresh(&layers)?;
     let out = args
         .out
         .clone()
@@ -189,14 +199,7 @@ pub fn resolve_train(args: &TrainArgs) -> Result<(Settings, PathBuf, Option<Veri
 /// any run directory, so a row's defaults and the effect of `--config`/`--set` can be read
 /// before hours of training.
 pub fn print_config(args: &TrainArgs) -> Result<String, Error> {
-    let layers = layers(args)?;
-    let s = match &args.resume {
-        Some(dir) => {
-            let v = open_checkpoint(dir)?;
-            resolve_resumed(&v.meta, &v.dir, &layers)?
-        }
-        None => resolve_fresh(&layers)?,
-    };
+    let (s, _) = resolve_settings(args)?;
     Ok(s.config_toml(&tasks::row(&s.task, &s.net)?.sizes))
 }
 
