@@ -30,5 +30,6 @@ LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}:$PWD/.deps/mujoco "$mpo" plot --by-task \
     --target walker-stand=950 --target walker-walk=900 --target walker-run=500 \
     --target cheetah-run=600 --target hopper-stand=700 --target hopper-hop=100 \
     --budget cartpole-swingup=200000 --budget walker-walk=500000 --budget walker-run=1000000 \
-    --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget acrobot-swingup=1000000 \
+    --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget hopper-hop=1000000 \
+    --budget acrobot-swingup=1000000 \
     --out "$r/overview.png" "$@"

@@ -193,6 +193,12 @@ pub struct PlotArgs {
     /// `--budget walker-run=1000000`. Repeat for several tasks.
     #[arg(long, value_name = "TASK=STEPS", requires = "by_task")]
     pub budget: Vec<String>,
+    /// Draw the mean over the runs (over each panel's runs with --by-task) as the bold curve,
+    /// its band +-1 standard deviation over the runs (population, not over episodes), the runs
+    /// as thin lines behind it; only the evaluation steps every run has are averaged. Prints
+    /// the mean at the last such step, with each run's return there.
+    #[arg(long)]
+    pub mean: bool,
 }
 
 /// `mpo train`.

@@ -833,11 +833,45 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
             runs.iter().find_map(|r| r.2.clone()).unwrap_or_default()
         )
     });
+    let task = runs.iter().find_map(|r| r.2.clone());
     let series: Vec<_> = runs
         .into_iter()
         .map(|(label, pts, _)| (label, pts))
         .collect();
-    crate::plot::write_curves(&args.out, &title, &series).map_err(Error::Plot)
+    let mean = match args.mean {
+        true => Some(mean_of_runs(task.as_deref().unwrap_or("runs"), &series)?),
+        false => None,
+    };
+    crate::plot::write_curves(&args.out, &title, &series, mean).map_err(Error::Plot)
+}
+
+/// `--mean`: the mean curve over `series` ([`crate::plot::mean_over_runs`]), with its legend
+/// label, after printing its last point and each run's return there (`what` names the runs).
+fn mean_of_runs(what: &str, series: &[crate::plot::Series]) -> Result<crate::plot::Series, Error> {
+    let pts = crate::plot::mean_over_runs(series).ok_or_else(|| {
+        Error::Plot(format!(
+            "--mean: the {what} runs share no evaluation step (it averages at the steps every run has)"
+        ))
+    })?;
+    let &(x, m, sd) = pts.last().expect("mean_over_runs returns points or None");
+    let each: Vec<String> = series
+        .iter()
+        .filter_map(|(label, p)| {
+            p.iter()
+                .find(|q| q.0 == x)
+                .map(|q| format!("{label} {:.1}", q.1))
+        })
+        .collect();
+    let runs = match series.len() {
+        1 => "1 run".to_string(),
+        n => format!("{n} runs"),
+    };
+    println!(
+        "{what}: mean of {runs} at {x} steps: {m:.1} +- {sd:.1} ({})",
+        each.join(", ")
+    );
+    let label = format!("mean of {} (+-1 std over runs)", series.len());
+    Ok((label, pts))
 }
 
 /// `mpo plot --by-task`: the runs grouped by their task into panels, with the `--target` lines.
@@ -857,7 +891,13 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
                 series: vec![(label, pts)],
                 target: None,
                 budget: None,
+                mean: None,
             }),
+        }
+    }
+    if args.mean {
+        for p in &mut panels {
+            p.mean = Some(mean_of_runs(&p.title, &p.series)?);
         }
     }
     for t in &args.target {

@@ -43,7 +43,29 @@ pub fn write_curve(path: &Path, title: &str, rows: &[MetricsRow]) -> Result<(), 
         .iter()
         .map(|r| (r.env_steps, r.eval_return_mean, r.eval_return_std))
         .collect();
-    write_curves(path, title, &[(String::new(), points)])
+    write_curves(path, title, &[(String::new(), points)], None)
+}
+
+/// The mean over runs (`mpo plot --mean`): at each evaluation step that every one of `series`
+/// has, the mean of their evaluation returns and the population standard deviation of those
+/// returns over the runs (the spread across seeds, not the episodes'). Steps some run lacks
+/// are left out, so each point averages the same runs. `None` when no step is shared.
+pub fn mean_over_runs(series: &[Series]) -> Option<Vec<(u64, f64, f64)>> {
+    let (_, first) = series.first()?;
+    let at = |pts: &[(u64, f64, f64)], x: u64| pts.iter().find(|p| p.0 == x).map(|p| p.1);
+    let mut out: Vec<(u64, f64, f64)> = Vec::new();
+    for &(x, _, _) in first {
+        if out.iter().any(|p| p.0 == x) {
+            continue;
+        }
+        let values: Option<Vec<f64>> = series.iter().map(|(_, p)| at(p, x)).collect();
+        let Some(v) = values else { continue };
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = v.iter().map(|m| (m - mean) * (m - mean)).sum::<f64>() / n;
+        out.push((x, mean, var.sqrt()));
+    }
+    (!out.is_empty()).then_some(out)
 }
 
 /// One chart of a grid (`mpo plot --by-task`): its title, its curves and, when given, a
@@ -57,10 +79,19 @@ pub struct Panel {
     pub target: Option<f64>,
     /// The step axis's end when the runs stop before it (the task's budget).
     pub budget: Option<u64>,
+    /// The mean over the runs ([`mean_over_runs`]), labelled: when given, it is the panel's
+    /// bold curve with its band, and the runs are drawn as thin lines behind it.
+    pub mean: Option<Series>,
 }
 
-/// Draws several learning curves (e.g. seeds) into one chart, with a legend when labelled.
-pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), String> {
+/// Draws several learning curves (e.g. seeds) into one chart, with a legend when labelled,
+/// and their `mean` over runs when given.
+pub fn write_curves(
+    path: &Path,
+    title: &str,
+    series: &[Series],
+    mean: Option<Series>,
+) -> Result<(), String> {
     if !register_font() {
         return Err(format!("no TrueType font found (tried {FONT_PATHS:?})"));
     }
@@ -71,6 +102,7 @@ pub fn write_curves(path: &Path, title: &str, series: &[Series]) -> Result<(), S
         series: series.to_vec(),
         target: None,
         budget: None,
+        mean,
     };
     draw_panel(&root, &panel, 22)?;
     root.present().map_err(|x| x.to_string())
@@ -115,6 +147,7 @@ fn draw_panel(
         series,
         target,
         budget,
+        mean,
     } = panel;
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let xmax = series
@@ -150,48 +183,32 @@ fn draw_panel(
             ))
             .map_err(|x| e(&x))?;
     }
-    draw_series(&mut chart, series)
+    draw_series(&mut chart, series, mean.as_ref())
 }
 
-/// The curves of one chart, and their legend when labelled.
+type Chart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The curves of one chart, and their legend when labelled: each run bold with its band, or,
+/// under a `mean`, each run thin and the mean bold in black with its band over runs.
 fn draw_series<'a, 'b: 'a>(
-    chart: &mut ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    chart: &mut Chart<'a, 'b>,
     series: &'a [Series],
+    mean: Option<&'a Series>,
 ) -> Result<(), String> {
-    let e = |e: &dyn std::fmt::Display| e.to_string();
-    for (k, (label, pts)) in series.iter().enumerate() {
+    for (k, s) in series.iter().enumerate() {
         let color = Palette99::pick(k).to_rgba();
-        let band: Vec<(f64, f64)> = pts
-            .iter()
-            .map(|&(x, m, s)| (x as f64, (m + s).min(1000.0)))
-            .chain(
-                pts.iter()
-                    .rev()
-                    .map(|&(x, m, s)| (x as f64, (m - s).max(0.0))),
-            )
-            .collect();
-        chart
-            .draw_series(std::iter::once(Polygon::new(band, color.mix(0.12))))
-            .map_err(|x| e(&x))?;
-        let line = chart
-            .draw_series(LineSeries::new(
-                pts.iter().map(|&(x, m, _)| (x as f64, m)),
-                color.stroke_width(2),
-            ))
-            .map_err(|x| e(&x))?;
-        if !label.is_empty() {
-            line.label(label.as_str()).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-            });
+        if mean.is_some() {
+            draw_thin(chart, s, color)?;
+        } else {
+            draw_bold(chart, s, color)?;
         }
-        chart
-            .draw_series(
-                pts.iter()
-                    .map(|&(x, m, _)| Circle::new((x as f64, m), 3, color.filled())),
-            )
-            .map_err(|x| e(&x))?;
     }
-    if series.iter().any(|(l, _)| !l.is_empty()) {
+    if let Some(m) = mean {
+        draw_bold(chart, m, BLACK.to_rgba())?;
+    }
+    let labelled = series.iter().chain(mean).any(|(l, _)| !l.is_empty());
+    if labelled {
         chart
             .configure_series_labels()
             .position(legend_position(series))
@@ -199,8 +216,68 @@ fn draw_series<'a, 'b: 'a>(
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
             .draw()
-            .map_err(|x| e(&x))?;
+            .map_err(|x| x.to_string())?;
     }
+    Ok(())
+}
+
+/// One run under a mean: a thin line, no band, no points.
+fn draw_thin<'a, 'b: 'a>(
+    chart: &mut Chart<'a, 'b>,
+    (label, pts): &'a Series,
+    color: RGBAColor,
+) -> Result<(), String> {
+    let color = color.mix(0.55);
+    let line = chart
+        .draw_series(LineSeries::new(
+            pts.iter().map(|&(x, m, _)| (x as f64, m)),
+            color.stroke_width(1),
+        ))
+        .map_err(|x| x.to_string())?;
+    if !label.is_empty() {
+        line.label(label.as_str()).legend(move |(x, y)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(1))
+        });
+    }
+    Ok(())
+}
+
+/// A curve with its +-1 std band, points and legend entry.
+fn draw_bold<'a, 'b: 'a>(
+    chart: &mut Chart<'a, 'b>,
+    (label, pts): &'a Series,
+    color: RGBAColor,
+) -> Result<(), String> {
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let band: Vec<(f64, f64)> = pts
+        .iter()
+        .map(|&(x, m, s)| (x as f64, (m + s).min(1000.0)))
+        .chain(
+            pts.iter()
+                .rev()
+                .map(|&(x, m, s)| (x as f64, (m - s).max(0.0))),
+        )
+        .collect();
+    chart
+        .draw_series(std::iter::once(Polygon::new(band, color.mix(0.12))))
+        .map_err(|x| e(&x))?;
+    let line = chart
+        .draw_series(LineSeries::new(
+            pts.iter().map(|&(x, m, _)| (x as f64, m)),
+            color.stroke_width(2),
+        ))
+        .map_err(|x| e(&x))?;
+    if !label.is_empty() {
+        line.label(label.as_str()).legend(move |(x, y)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+        });
+    }
+    chart
+        .draw_series(
+            pts.iter()
+                .map(|&(x, m, _)| Circle::new((x as f64, m), 3, color.filled())),
+        )
+        .map_err(|x| e(&x))?;
     Ok(())
 }
 

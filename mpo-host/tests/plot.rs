@@ -1,5 +1,5 @@
-//! `mpo plot --by-task`: runs grouped into one panel per task, target lines, and clear errors
-//! for runs it cannot group. The runs are written by hand (a `metrics.jsonl` and a
+//! `mpo plot`: `--by-task` (runs grouped into one panel per task, target lines), `--mean` (the
+//! mean over runs, drawn and printed), and clear errors for runs it cannot group or average. The runs are written by hand (a `metrics.jsonl` and a
 //! `config.toml` naming the task), so no training is needed.
 
 mod common;
@@ -155,5 +155,81 @@ fn by_task_refuses_what_it_cannot_group_or_draw() {
     // --target needs --by-task: a usage error (exit status 2).
     let out = plot(&["--target", "walker-walk=900", "--out", s(&png), s(&a)]);
     assert_eq!(out.status.code(), Some(2));
+    assert!(!png.exists(), "nothing is drawn after an error");
+}
+
+#[test]
+fn mean_draws_and_prints_the_mean_over_runs_at_the_steps_they_share() {
+    let d = scratch("plot-mean");
+    // Three seeds of one task; the second stops one evaluation early (0..40k), so the mean
+    // ends at 40k, where the returns are 400, 320 and 480.
+    let runs = [
+        fake_run(&d, "ww-s0", Some("walker-walk"), 6, 100.0),
+        fake_run(&d, "ww-s1", Some("walker-walk"), 5, 80.0),
+        fake_run(&d, "ww-s2", Some("walker-walk"), 6, 120.0),
+    ];
+    let names: Vec<&str> = runs.iter().map(|r| s(r)).collect();
+    let png = d.join("mean.png");
+    let mut args = vec!["--mean", "--out", s(&png)];
+    args.extend(&names);
+    let out = plot(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The population standard deviation of (400, 320, 480), written out independently.
+    let sd = ((0.0f64 + 80.0 * 80.0 + 80.0 * 80.0) / 3.0).sqrt();
+    let expected = format!(
+        "walker-walk: mean of 3 runs at 40000 steps: 400.0 +- {sd:.1} (ww-s0 400.0, ww-s1 320.0, ww-s2 480.0)"
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(stdout.trim(), expected);
+    // The same runs without --mean: the same size, other pixels (the thin runs, the black mean).
+    let plain = draw(&d, "plain.png", &names);
+    assert_eq!(png_size(&png), plain.1);
+    assert_ne!(std::fs::read(&png).unwrap(), plain.0);
+    // With --by-task, one line per panel, each panel's own runs averaged.
+    let other = fake_run(&d, "cr-s0", Some("cheetah-run"), 3, 50.0);
+    let mut args = vec!["--by-task", "--mean"];
+    args.extend(&names);
+    args.push(s(&other));
+    let png2 = d.join("panels.png");
+    args.extend(["--out", s(&png2)]);
+    let out = plot(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    assert_eq!(lines[0], expected);
+    assert_eq!(
+        lines[1],
+        "cheetah-run: mean of 1 run at 20000 steps: 100.0 +- 0.0 (cr-s0 100.0)"
+    );
+}
+
+#[test]
+fn mean_refuses_runs_that_share_no_evaluation_step() {
+    let d = scratch("plot-mean-disjoint");
+    let a = fake_run(&d, "a", Some("walker-walk"), 3, 100.0);
+    // Evaluations at 5k, 15k, 25k: none at a's 0, 10k, 20k.
+    let b = d.join("b");
+    std::fs::create_dir_all(&b).unwrap();
+    let lines: Vec<String> = (0..3)
+        .map(|i| {
+            format!(
+                r#"{{"env_steps":{},"eval_return_mean":1,"eval_return_std":0}}"#,
+                5_000 + 10_000 * i
+            )
+        })
+        .collect();
+    std::fs::write(b.join("metrics.jsonl"), lines.join("\n")).unwrap();
+    let png = d.join("x.png");
+    let err = err_text(&plot(&["--mean", "--out", s(&png), s(&a), s(&b)]));
+    assert!(err.contains("share no evaluation step"), "{err}");
     assert!(!png.exists(), "nothing is drawn after an error");
 }
