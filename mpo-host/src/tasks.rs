@@ -215,7 +215,7 @@ const SUITE_MPO: MpoSettings = MpoSettings {
 ///   steps without it and left 0 by 40k-60k with it (one seed). Its observations' standard
 ///   deviations in the replay range from 0.15 to 3.7 and their means reach 1.7 in magnitude.
 /// - the weaker penalty: with 0.1 two hopper-stand seeds of three stalled at 150-300 while
-///   their mean actions shrank (mean `|mu|` 0.20-0.30 at 160k against 0.56-0.61 in the seeds
+///   their mean actions shrank (mean `|mu|` 0.19-0.24 at 160k against 0.56-0.61 in the seeds
 ///   that stood): the penalty held the mean inside the box where standing needs it at the
 ///   edge. With 0.01 the mean leaves the box (mean `|mu|` 1.28-1.38 at 200k; the plant clips
 ///   it) and every seed stands: 864.3 / 761.6 / 767.6 at 200k (797.8 on average) against
@@ -253,7 +253,7 @@ const SUITE_SCHEDULE: Schedule = Schedule {
 /// with correlated exploration noise (`noise_corr` 0.95, a push lasting about 20 steps).
 /// Measured with independent draws against it (docs/training.md):
 /// - pendulum-swingup: the sampled torque changes sign every few steps, never pumps the
-///   pendulum up, and the return stayed 0.0 at every evaluation to 100k steps; with it seed 0
+///   pendulum up, and the return stayed at 0-7 at every evaluation to 100k steps; with it seed 0
 ///   evaluated 791 at 60k.
 /// - hopper-stand, seed 0 at 100k steps: 377.8 +- 11.6 (every evaluation episode stands)
 ///   against 114.9 +- 140.8, 877.9 at 160k; seeds 1 and 2 slower (218 and 154 at 180k).
