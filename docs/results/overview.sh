@@ -17,7 +17,7 @@ for s in 0 1 2; do link walker-walk $s default-seed$s; done
 link walker-run 0 default-seed0
 for s in 0 1 2; do link cheetah-run $s default-seed$s; done
 for s in 0 1 2; do link hopper-stand $s eps-penalty-0.01-seed$s; done
-link hopper-hop 0 eps-penalty-0.01-seed0
+for s in 0 1 2; do link hopper-hop $s eps-penalty-0.01-seed$s; done
 link acrobot-swingup 0 noise-0.95-seed0
 set --
 for t in cartpole-balance cartpole-swingup pendulum-swingup walker-stand walker-walk walker-run \
