@@ -838,16 +838,25 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
         .into_iter()
         .map(|(label, pts, _)| (label, pts))
         .collect();
-    let mean = match args.mean {
-        true => Some(mean_of_runs(task.as_deref().unwrap_or("runs"), &series)?),
-        false => None,
+    let (mean, line) = match args.mean {
+        true => {
+            let (m, line) = mean_of_runs(task.as_deref().unwrap_or("runs"), &series)?;
+            (Some(m), Some(line))
+        }
+        false => (None, None),
     };
-    crate::plot::write_curves(&args.out, &title, &series, mean).map_err(Error::Plot)
+    crate::plot::write_curves(&args.out, &title, &series, mean).map_err(Error::Plot)?;
+    line.iter().for_each(|l| println!("{l}"));
+    Ok(())
 }
 
-/// `--mean`: the mean curve over `series` ([`crate::plot::mean_over_runs`]), with its legend
-/// label, after printing its last point and each run's return there (`what` names the runs).
-fn mean_of_runs(what: &str, series: &[crate::plot::Series]) -> Result<crate::plot::Series, Error> {
+/// `--mean`: the mean curve over `series` ([`crate::plot::mean_over_runs`]) with its legend
+/// label, and the line to print once the image is written: its last point and each run's
+/// return there (`what` names the runs).
+fn mean_of_runs(
+    what: &str,
+    series: &[crate::plot::Series],
+) -> Result<(crate::plot::Series, String), Error> {
     let pts = crate::plot::mean_over_runs(series).ok_or_else(|| {
         Error::Plot(format!(
             "--mean: the {what} runs share no evaluation step (it averages at the steps every run has)"
@@ -866,12 +875,12 @@ fn mean_of_runs(what: &str, series: &[crate::plot::Series]) -> Result<crate::plo
         1 => "1 run".to_string(),
         n => format!("{n} runs"),
     };
-    println!(
+    let line = format!(
         "{what}: mean of {runs} at {x} steps: {m:.1} +- {sd:.1} ({})",
         each.join(", ")
     );
     let label = format!("mean of {} (+-1 std over runs)", series.len());
-    Ok((label, pts))
+    Ok(((label, pts), line))
 }
 
 /// `mpo plot --by-task`: the runs grouped by their task into panels, with the `--target` lines.
@@ -895,11 +904,6 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
             }),
         }
     }
-    if args.mean {
-        for p in &mut panels {
-            p.mean = Some(mean_of_runs(&p.title, &p.series)?);
-        }
-    }
     for t in &args.target {
         let (panel, value) =
             panel_setting(&mut panels, "--target", "RETURN", "walker-walk=900", t)?;
@@ -915,8 +919,19 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
         }
         panel.budget = Some(value as u64);
     }
+    let mut lines = Vec::new();
+    if args.mean {
+        for p in &mut panels {
+            let (mean, line) = mean_of_runs(&p.title, &p.series)?;
+            p.mean = Some(mean);
+            lines.push(line);
+        }
+    }
     let title = args.title.clone().unwrap_or_else(|| "MPO".to_string());
-    crate::plot::write_panels(&args.out, &title, &panels).map_err(Error::Plot)
+    crate::plot::write_panels(&args.out, &title, &panels).map_err(Error::Plot)?;
+    // Only after the image is written, so a refused or failed command prints no figure.
+    lines.iter().for_each(|l| println!("{l}"));
+    Ok(())
 }
 
 /// `TASK=VALUE` of `flag`: the panel of TASK and the value, or an error naming the flag.

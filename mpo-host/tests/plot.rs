@@ -231,5 +231,16 @@ fn mean_refuses_runs_that_share_no_evaluation_step() {
     let png = d.join("x.png");
     let err = err_text(&plot(&["--mean", "--out", s(&png), s(&a), s(&b)]));
     assert!(err.contains("share no evaluation step"), "{err}");
+    // A refused flag with --by-task: no mean printed either (err_text checks stdout is empty).
+    let err = err_text(&plot(&[
+        "--by-task",
+        "--mean",
+        "--target",
+        "cheetah-run=600",
+        "--out",
+        s(&png),
+        s(&a),
+    ]));
+    assert!(err.contains("none of the runs given"), "{err}");
     assert!(!png.exists(), "nothing is drawn after an error");
 }
