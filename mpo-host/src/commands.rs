@@ -838,14 +838,14 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
         .into_iter()
         .map(|(label, pts, _)| (label, pts))
         .collect();
-    let (mean, line) = match args.mean {
-        true => {
-            let (m, line) = mean_of_runs(task.as_deref().unwrap_or("runs"), &series)?;
-            (Some(m), Some(line))
-        }
-        false => (None, None),
-    };
+    let what = task.as_deref().unwrap_or("runs");
+    let (mean, line) = args
+        .mean
+        .then(|| mean_of_runs(what, &series))
+        .transpose()?
+        .unzip();
     crate::plot::write_curves(&args.out, &title, &series, mean).map_err(Error::Plot)?;
+    // Only after the image is written, so a refused or failed command prints no figure.
     line.iter().for_each(|l| println!("{l}"));
     Ok(())
 }

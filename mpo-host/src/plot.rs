@@ -224,31 +224,19 @@ fn draw_series<'a, 'b: 'a>(
 /// One run under a mean: a thin line, no band, no points.
 fn draw_thin<'a, 'b: 'a>(
     chart: &mut Chart<'a, 'b>,
-    (label, pts): &'a Series,
+    series: &'a Series,
     color: RGBAColor,
 ) -> Result<(), String> {
-    let color = color.mix(0.55);
-    let line = chart
-        .draw_series(LineSeries::new(
-            pts.iter().map(|&(x, m, _)| (x as f64, m)),
-            color.stroke_width(1),
-        ))
-        .map_err(|x| x.to_string())?;
-    if !label.is_empty() {
-        line.label(label.as_str()).legend(move |(x, y)| {
-            PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(1))
-        });
-    }
-    Ok(())
+    draw_line(chart, series, color.mix(0.55), 1)
 }
 
 /// A curve with its +-1 std band, points and legend entry.
 fn draw_bold<'a, 'b: 'a>(
     chart: &mut Chart<'a, 'b>,
-    (label, pts): &'a Series,
+    series: &'a Series,
     color: RGBAColor,
 ) -> Result<(), String> {
-    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let pts = &series.1;
     let band: Vec<(f64, f64)> = pts
         .iter()
         .map(|&(x, m, s)| (x as f64, (m + s).min(1000.0)))
@@ -260,24 +248,35 @@ fn draw_bold<'a, 'b: 'a>(
         .collect();
     chart
         .draw_series(std::iter::once(Polygon::new(band, color.mix(0.12))))
-        .map_err(|x| e(&x))?;
-    let line = chart
-        .draw_series(LineSeries::new(
-            pts.iter().map(|&(x, m, _)| (x as f64, m)),
-            color.stroke_width(2),
-        ))
-        .map_err(|x| e(&x))?;
-    if !label.is_empty() {
-        line.label(label.as_str()).legend(move |(x, y)| {
-            PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-        });
-    }
+        .map_err(|x| x.to_string())?;
+    draw_line(chart, series, color, 2)?;
     chart
         .draw_series(
             pts.iter()
                 .map(|&(x, m, _)| Circle::new((x as f64, m), 3, color.filled())),
         )
-        .map_err(|x| e(&x))?;
+        .map_err(|x| x.to_string())?;
+    Ok(())
+}
+
+/// The mean line of `pts` in `color` and `width`, with its legend entry when labelled.
+fn draw_line<'a, 'b: 'a>(
+    chart: &mut Chart<'a, 'b>,
+    (label, pts): &'a Series,
+    color: RGBAColor,
+    width: u32,
+) -> Result<(), String> {
+    let line = chart
+        .draw_series(LineSeries::new(
+            pts.iter().map(|&(x, m, _)| (x as f64, m)),
+            color.stroke_width(width),
+        ))
+        .map_err(|x| x.to_string())?;
+    if !label.is_empty() {
+        line.label(label.as_str()).legend(move |(x, y)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(width))
+        });
+    }
     Ok(())
 }
 

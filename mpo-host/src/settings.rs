@@ -62,9 +62,10 @@ pub struct Schedule {
     pub action_penalty: f64,
     /// Correlation in `[0, 1)` of the exploration noise between consecutive steps of an
     /// episode (`mpo_core::agent::AgentSchedule::noise_corr`): 0 = independent draws (the
-    /// default but in the rows of `CORRELATED_NOISE_SCHEDULE`, 0.95); 0.9 keeps a push going for about 10 steps. Not with Retrace, and not
-    /// on a device (its START frame has no field for it). Missing in a checkpoint or file
-    /// written before it existed: 0, which is what those runs did (so they resume as before).
+    /// default but in the rows of `CORRELATED_NOISE_SCHEDULE`, 0.95); 0.9 keeps a push going
+    /// for about 10 steps. Not with Retrace, and not on a device (its START frame has no field
+    /// for it). Missing in a checkpoint or file written before it existed: 0, which is what
+    /// those runs did (so they resume as before).
     #[serde(default)]
     pub noise_corr: f64,
     /// Pink (1/f) exploration noise (`mpo_core::agent::AgentSchedule::noise_pink`): pushes of

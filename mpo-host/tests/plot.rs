@@ -1,6 +1,7 @@
 //! `mpo plot`: `--by-task` (runs grouped into one panel per task, target lines), `--mean` (the
-//! mean over runs, drawn and printed), and clear errors for runs it cannot group or average. The runs are written by hand (a `metrics.jsonl` and a
-//! `config.toml` naming the task), so no training is needed.
+//! mean over runs, drawn and printed), and clear errors for runs it cannot group or average.
+//! The runs are written by hand (a `metrics.jsonl` and a `config.toml` naming the task), so no
+//! training is needed.
 
 mod common;
 use common::*;
