@@ -29,8 +29,38 @@ fn main() {
         .hash(&mut hasher);
     println!("cargo::rerun-if-changed=Cargo.toml");
     println!("cargo::rerun-if-changed=src");
+    builtin_tasks(&mut hasher);
     println!(
         "cargo::rustc-env=SIM_BRIDGE_BUILD_ID={:016x}",
         hasher.finish()
     );
+}
+
+/// `$OUT_DIR/builtin_tasks.rs`: every `tasks/*.toml` of the repository, compiled in (the name
+/// is the file's stem), so a task file dropped into `tasks/` is built in with no code change.
+fn builtin_tasks(hasher: &mut DefaultHasher) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tasks");
+    println!("cargo::rerun-if-changed={}", dir.display());
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    files.retain(|p: &std::path::PathBuf| p.extension().is_some_and(|e| e == "toml"));
+    files.sort();
+    let mut names = String::new();
+    let mut table = String::new();
+    for p in &files {
+        println!("cargo::rerun-if-changed={}", p.display());
+        let stem = p.file_stem().unwrap().to_string_lossy().to_string();
+        std::fs::read(p).unwrap_or_default().hash(hasher);
+        names.push_str(&format!("    {stem:?},\n"));
+        table.push_str(&format!(
+            "    ({stem:?}, include_str!({:?})),\n",
+            p.canonicalize().unwrap().display().to_string()
+        ));
+    }
+    let code = format!(
+        "/// The built-in tasks' names, in file-name order.\npub const BUILTIN_NAMES: &[&str] = &[\n{names}];\n\n/// `(name, text)` of each built-in task file.\nstatic BUILTIN: &[(&str, &str)] = &[\n{table}];\n"
+    );
+    let out = Path::new(&std::env::var("OUT_DIR").unwrap()).join("builtin_tasks.rs");
+    std::fs::write(out, code).unwrap();
 }

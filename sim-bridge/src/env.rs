@@ -6,7 +6,8 @@ use crate::physics::{Physics, Sync};
 use crate::tasks::{self, Task};
 use crate::{Environment, Step, TaskSpec};
 
-/// A Control Suite environment: model, task logic, the task's `RandomState` and the step count.
+/// A MuJoCo environment: model, task logic (a task file's, or during the move to files a
+/// Rust one), the task's `RandomState` and the step count.
 pub struct SuiteEnv {
     spec: TaskSpec,
     physics: Physics,
@@ -15,8 +16,32 @@ pub struct SuiteEnv {
     n_sub_steps: usize,
     /// How much state the task needs refreshed after each step.
     sync: Sync,
+    /// Gymnasium's call sequence instead of dm_control's.
+    gymnasium: bool,
+    /// Actuator ids the action drives, in action order.
+    actuators: Vec<usize>,
+    /// Per action dimension `(mid, half)`: ctrl = mid + action * half; `None` writes the
+    /// action to ctrl unchanged (every range `[-1, 1]`, the Control Suite's).
+    scale: Option<Vec<(f64, f64)>>,
+    /// The action in the actuators' units (scratch, sized once).
+    ctrl: Vec<f64>,
+    /// The task file, for error messages.
+    file: String,
     /// Control steps taken in the current episode; `None` outside an episode.
     step_count: Option<usize>,
+}
+
+/// What [`SuiteEnv::from_parts`] assembles.
+pub(crate) struct Parts {
+    pub spec: TaskSpec,
+    pub physics: Physics,
+    pub task: Box<dyn Task>,
+    pub seed: u32,
+    pub n_sub_steps: usize,
+    pub gymnasium: bool,
+    pub actuators: Vec<usize>,
+    pub scale: Option<Vec<(f64, f64)>>,
+    pub file: String,
 }
 
 impl std::fmt::Debug for SuiteEnv {
@@ -29,37 +54,49 @@ impl std::fmt::Debug for SuiteEnv {
 }
 
 impl SuiteEnv {
-    /// Loads the model, checks it against the task table and seeds the task's `RandomState`.
+    /// The built-in task `task` (`tasks/<task>.toml`), its `RandomState` seeded with `seed`.
     pub fn new(task: &str, seed: u32) -> Result<Self, SimError> {
+        crate::TaskDef::builtin(task)?.make(seed)
+    }
+
+    pub(crate) fn from_parts(p: Parts) -> Self {
+        let sync = p.task.sync();
+        let act = p.actuators.len();
+        Self {
+            spec: p.spec,
+            physics: p.physics,
+            task: p.task,
+            random: RandomState::new(p.seed),
+            n_sub_steps: p.n_sub_steps,
+            sync,
+            gymnasium: p.gymnasium,
+            actuators: p.actuators,
+            scale: p.scale,
+            ctrl: vec![0.0; act],
+            file: p.file,
+            step_count: None,
+        }
+    }
+
+    /// The Rust task logic of a Control Suite task (kept while the task files are checked
+    /// against it).
+    #[cfg(test)]
+    pub(crate) fn rust(task: &str, seed: u32) -> Result<Self, SimError> {
         let entry = tasks::entry(task)?;
         let physics = Physics::load(entry.domain)?;
-        let name = entry.name;
-        let model = physics.model().ffi();
-        let mismatch = |detail: String| Err(SimError::ModelMismatch { task: name, detail });
-        if physics.timestep() != entry.timestep {
-            return mismatch(format!(
-                "timestep {} (expected {})",
-                physics.timestep(),
-                entry.timestep
-            ));
-        }
-        if model.nu as usize != entry.act_dim {
-            return mismatch(format!(
-                "{} actuators (expected {})",
-                model.nu, entry.act_dim
-            ));
-        }
         let task_logic = entry.build(&physics)?;
-        let sync = task_logic.sync();
-        Ok(Self {
-            sync,
+        let nu = physics.model().ffi().nu as usize;
+        Ok(Self::from_parts(Parts {
             spec: entry.spec(),
             physics,
             task: task_logic,
-            random: RandomState::new(seed),
+            seed,
             n_sub_steps: entry.n_sub_steps,
-            step_count: None,
-        })
+            gymnasium: false,
+            actuators: (0..nu).collect(),
+            scale: None,
+            file: entry.name.to_string(),
+        }))
     }
 
     /// The simulation, for benchmarks and diagnostics.
@@ -90,7 +127,7 @@ impl SuiteEnv {
     fn check(&self, action: &[f64], obs: &[f64]) -> Result<(), SimError> {
         if action.len() != self.spec.act_dim {
             return Err(SimError::ActionWidth {
-                task: self.spec.name,
+                task: self.spec.name.clone(),
                 expected: self.spec.act_dim,
                 got: action.len(),
             });
@@ -108,6 +145,24 @@ impl SuiteEnv {
     }
 }
 
+impl SuiteEnv {
+    fn non_finite(&self, what: &'static str, value: f64, step: usize) -> SimError {
+        let (q, v) = (self.physics.qpos(), self.physics.qvel());
+        let finite = q.iter().chain(v).all(|x| x.is_finite());
+        SimError::NonFinite {
+            file: self.file.clone(),
+            what,
+            value,
+            step,
+            detail: if finite {
+                "the state is finite: an expression of the file divides by zero or leaves its domain".into()
+            } else {
+                "the simulation diverged".into()
+            },
+        }
+    }
+}
+
 impl Environment for SuiteEnv {
     fn spec(&self) -> &TaskSpec {
         &self.spec
@@ -115,11 +170,19 @@ impl Environment for SuiteEnv {
 
     fn reset(&mut self, obs: &mut [f64]) {
         assert_eq!(obs.len(), self.spec.obs_dim, "observation buffer length");
-        // `with physics.reset_context(): task.initialize_episode(physics)`.
         self.physics.reset();
         self.task
             .initialize_episode(&mut self.physics, &mut self.random);
-        self.physics.forward_without_actuation();
+        if self.gymnasium {
+            // `set_state`: mj_forward with the controls the reset left.
+            self.physics.forward();
+        } else {
+            // `with physics.reset_context(): task.initialize_episode(physics)`.
+            self.physics.forward_without_actuation();
+        }
+        self.ctrl.iter_mut().for_each(|c| *c = 0.0);
+        self.task.before_step(&mut self.physics, &self.ctrl);
+        self.task.after_step(&mut self.physics);
         self.task.observe(&self.physics, obs);
         self.step_count = Some(0);
     }
@@ -133,23 +196,48 @@ impl Environment for SuiteEnv {
 
     fn try_step(&mut self, action: &[f64], obs: &mut [f64]) -> Result<Step, SimError> {
         self.check(action, obs)?;
+        match &self.scale {
+            None => self.ctrl.copy_from_slice(action),
+            Some(s) => {
+                for ((c, a), (mid, half)) in self.ctrl.iter_mut().zip(action).zip(s) {
+                    *c = mid + a * half;
+                }
+            }
+        }
+        self.task.before_step(&mut self.physics, &self.ctrl);
         // `task.before_step` (set_control: copied as given, unclipped), `physics.step`.
-        self.physics.ctrl_mut().copy_from_slice(action);
+        for (&id, &c) in self.actuators.iter().zip(&self.ctrl) {
+            self.physics.ctrl_mut()[id] = c;
+        }
         let warnings = self.physics.warning_counts();
-        self.physics.step_synced(self.n_sub_steps, self.sync);
+        if self.gymnasium {
+            self.physics.step_gymnasium(self.n_sub_steps);
+        } else {
+            self.physics.step_synced(self.n_sub_steps, self.sync);
+        }
         if let Some(warnings) = self.physics.new_warnings(&warnings) {
             // Like dm_control's PhysicsError: the episode cannot continue.
             self.step_count = None;
             return Err(SimError::PhysicsError { warnings });
         }
+        self.task.after_step(&mut self.physics);
         let reward = self.task.reward(&self.physics);
         self.task.observe(&self.physics, obs);
         let count = self.step_count.map_or(1, |n| n + 1);
-        let last = count >= self.spec.episode_steps;
+        if !reward.is_finite() {
+            self.step_count = None;
+            return Err(self.non_finite("reward", reward, count));
+        }
+        if let Some(&v) = obs.iter().find(|v| !v.is_finite()) {
+            self.step_count = None;
+            return Err(self.non_finite("observation", v, count));
+        }
+        let terminated = self.task.terminated();
+        let last = terminated || count >= self.spec.episode_steps;
         self.step_count = if last { None } else { Some(count) };
         Ok(Step {
             reward,
-            discount: 1.0,
+            discount: if terminated { 0.0 } else { 1.0 },
             last,
         })
     }

@@ -32,9 +32,26 @@ pub enum SimError {
     #[error("{task}: the model does not match dm_control 1.0.50's ({detail})")]
     ModelMismatch { task: &'static str, detail: String },
 
+    /// A task file that cannot be used: which file, which key, why (one line).
+    #[error("{file}: {key}: {message}")]
+    TaskFile {
+        file: String,
+        key: String,
+        message: String,
+    },
+
+    #[error("{file}: the {what} became {value} at step {step} of the episode ({detail})")]
+    NonFinite {
+        file: String,
+        what: &'static str,
+        value: f64,
+        step: usize,
+        detail: String,
+    },
+
     #[error("action has {got} values, but {task} takes {expected}")]
     ActionWidth {
-        task: &'static str,
+        task: String,
         expected: usize,
         got: usize,
     },

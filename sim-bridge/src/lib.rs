@@ -36,23 +36,26 @@ pub mod physics;
 #[cfg(feature = "render")]
 pub mod render;
 pub mod rewards;
+pub mod taskfile;
 mod tasks;
 
 pub use env::SuiteEnv;
 pub use error::{SETUP_COMMAND, SimError};
+pub use taskfile::{Origin, TaskDef};
 
 /// The fixed shape of a task.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TaskSpec {
-    /// `<domain>-<task>`, e.g. `cartpole-swingup`.
-    pub name: &'static str,
+    /// The task's name, e.g. `cartpole-swingup` (a task file's `name`, or its file's stem).
+    pub name: String,
     /// Length of the flattened observation (all of dm_control's observation arrays, in order).
     pub obs_dim: usize,
     /// Number of actuators.
     pub act_dim: usize,
     /// Seconds of simulated time per control step.
     pub control_timestep: f64,
-    /// Control steps per episode (the time limit; there is no early termination).
+    /// Control steps per episode (the time limit; a task file's `terminate` may end one
+    /// earlier).
     pub episode_steps: usize,
 }
 
@@ -91,28 +94,17 @@ pub trait Environment: Send {
     }
 }
 
-/// The task names, `<domain>-<task>`.
-pub const TASKS: &[&str] = &[
-    "cartpole-balance",
-    "cartpole-swingup",
-    "hopper-stand",
-    "hopper-hop",
-    "acrobot-swingup",
-    "pendulum-swingup",
-    "walker-stand",
-    "walker-walk",
-    "walker-run",
-    "cheetah-run",
-];
+/// The built-in tasks' names (the repository's `tasks/*.toml`, in file-name order).
+pub const TASKS: &[&str] = taskfile::BUILTIN_NAMES;
 
-/// Loads the task's model and seeds its `RandomState` with `seed`.
+/// Loads the built-in task's model and seeds its `RandomState` with `seed`.
 pub fn make(task: &str, seed: u32) -> Result<Box<dyn Environment>, SimError> {
     Ok(Box::new(SuiteEnv::new(task, seed)?))
 }
 
-/// The task's shape, without loading MuJoCo.
+/// The built-in task's shape.
 pub fn task_spec(task: &str) -> Result<TaskSpec, SimError> {
-    Ok(tasks::entry(task)?.spec())
+    Ok(TaskDef::builtin(task)?.spec().clone())
 }
 
 #[cfg(test)]
@@ -120,13 +112,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn tasks_and_table_agree() {
-        for (name, entry) in TASKS.iter().zip(tasks::ENTRIES.iter()) {
-            assert_eq!(*name, entry.name);
-            let spec = task_spec(name).unwrap();
-            assert_eq!(spec.episode_steps, 1000, "{name}");
+    fn every_control_suite_task_is_a_task_file() {
+        for entry in tasks::ENTRIES.iter() {
+            assert!(TASKS.contains(&entry.name), "{}", entry.name);
+            let spec = task_spec(entry.name).unwrap();
+            assert_eq!(spec.episode_steps, 1000, "{}", entry.name);
+            assert_eq!(spec.obs_dim, entry.obs_dim, "{}", entry.name);
+            assert_eq!(spec.act_dim, entry.act_dim, "{}", entry.name);
         }
-        assert_eq!(TASKS.len(), tasks::ENTRIES.len());
     }
 
     #[test]

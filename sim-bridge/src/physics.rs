@@ -60,12 +60,25 @@ impl Physics {
     /// Loads `<domain>.xml` from the suite directory and, like dm_control's constructor, runs a
     /// forward pass with actuation disabled.
     pub fn load(domain: &str) -> Result<Self, SimError> {
-        let model = Box::new(assets::load_model(domain)?);
-        let data = MjData::new(model);
+        Ok(Self::from_model(assets::load_model(domain)?))
+    }
+
+    /// [`Physics::load`] of a suite file named with its extension (`cartpole.xml`).
+    pub fn load_suite(file: &str) -> Result<Self, SimError> {
+        Ok(Self::from_model(assets::load_suite_file(file)?))
+    }
+
+    /// An MJCF file from disk, with the same forward pass.
+    pub fn load_file(path: &std::path::Path) -> Result<Self, SimError> {
+        Ok(Self::from_model(assets::load_model_file(path)?))
+    }
+
+    fn from_model(model: MjModel) -> Self {
+        let data = MjData::new(Box::new(model));
         let rk4 = data.model_opt().integrator == mjtIntegrator::mjINT_RK4 as i32;
         let mut physics = Self { data, rk4 };
         physics.forward_without_actuation();
-        Ok(physics)
+        physics
     }
 
     pub fn model(&self) -> &MjModel {
@@ -113,6 +126,37 @@ impl Physics {
             }
             self.data.step1();
         }
+    }
+
+    /// Gymnasium's `MujocoEnv` step: `mj_step` x n, then `mj_rnePostConstraint` (so
+    /// `cacc`, `cfrc_int` and `cfrc_ext` are current; positions are those of the last
+    /// substep's forward pass, as Gymnasium reads them).
+    pub fn step_gymnasium(&mut self, n_sub_steps: usize) {
+        for _ in 0..n_sub_steps {
+            self.data.step();
+        }
+        self.data.rne_post_constraint();
+    }
+
+    /// `mj_forward` (Gymnasium's `set_state` after writing the initial state).
+    pub fn forward(&mut self) {
+        self.data.forward();
+    }
+
+    /// `mj_subtreeVel`: brings `subtree_linvel` up to date (it changes no state).
+    pub fn subtree_vel(&mut self) {
+        self.data.subtree_vel();
+    }
+
+    /// `mj_resetDataKeyframe`.
+    pub fn reset_keyframe(&mut self, key: usize) {
+        self.data
+            .reset_keyframe(key)
+            .expect("keyframe ids are checked when the task is bound");
+    }
+
+    pub fn act_mut(&mut self) -> &mut [f64] {
+        self.data.act_mut()
     }
 
     /// Plain `mj_step` x n: the baseline the benchmark compares the legacy step against.

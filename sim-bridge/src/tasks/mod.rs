@@ -6,7 +6,7 @@ mod cartpole;
 mod cheetah;
 mod hopper;
 mod pendulum;
-mod randomizers;
+pub(crate) mod randomizers;
 mod walker;
 
 use crate::TaskSpec;
@@ -24,6 +24,16 @@ pub(crate) trait Task: Send {
     fn observe(&self, physics: &Physics, obs: &mut [f64]);
     /// `get_reward`.
     fn reward(&self, physics: &Physics) -> f64;
+    /// Before the physics steps with `action` (in the actuators' units): a task file
+    /// evaluates its `prev(...)` values here.
+    fn before_step(&mut self, _physics: &mut Physics, _action: &[f64]) {}
+    /// After a step (and after a reset), before `observe`, `reward` and `terminated`: a
+    /// task file evaluates its expressions here.
+    fn after_step(&mut self, _physics: &mut Physics) {}
+    /// True when the state is terminal (the episode ends with discount 0).
+    fn terminated(&self) -> bool {
+        false
+    }
     /// What `observe` and `reward` need to be current after a control step (see [`Sync`]).
     fn sync(&self) -> Sync {
         Sync::Full
@@ -53,7 +63,7 @@ impl Entry {
         let control_timestep = self.timestep * self.n_sub_steps as f64;
         let limit = self.time_limit / control_timestep;
         TaskSpec {
-            name: self.name,
+            name: self.name.to_string(),
             obs_dim: self.obs_dim,
             act_dim: self.act_dim,
             control_timestep,
