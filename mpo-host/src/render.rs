@@ -234,7 +234,12 @@ pub fn render<const OBS: usize, const ACT: usize>(
         s.min(spec.episode_steps as u32)
     });
     let (every, fps) = timing(spec.control_timestep, opts.fps, format)?;
-    let mut renderer = Renderer::new(task, opts.width, opts.height, opts.camera.as_deref())?;
+    let mut renderer = Renderer::new(
+        &sim_bridge::TaskDef::builtin(task)?,
+        opts.width,
+        opts.height,
+        opts.camera.as_deref(),
+    )?;
     let (w, h) = (opts.width as usize, opts.height as usize);
     let mut video = match &opts.out {
         Some(p) => Some(Video::create(p, opts.width, opts.height, fps)?),
@@ -348,7 +353,12 @@ impl EvaluationStrips {
     /// Opens a renderer for `task` once, so that a machine that cannot render says so before
     /// training starts rather than at the first sheet.
     pub fn check(&self, task: &str) -> Result<(), RenderError> {
-        Renderer::new(task, self.width, self.height, None)?;
+        Renderer::new(
+            &sim_bridge::TaskDef::builtin(task)?,
+            self.width,
+            self.height,
+            None,
+        )?;
         Ok(())
     }
 
@@ -369,7 +379,12 @@ impl EvaluationStrips {
         }
         let episode_steps = sim_bridge::task_spec(task)?.episode_steps as u64;
         let at = evenly(episode_steps + 1, self.frames);
-        let mut renderer = Renderer::new(task, self.width, self.height, None)?;
+        let mut renderer = Renderer::new(
+            &sim_bridge::TaskDef::builtin(task)?,
+            self.width,
+            self.height,
+            None,
+        )?;
         let mut tiles = Vec::new();
         let (returns, _) = rollout::<OBS, ACT>(
             task,

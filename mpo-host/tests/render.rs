@@ -9,8 +9,8 @@ use common::*;
 
 use std::path::Path;
 
-use sim_bridge::Environment;
 use sim_bridge::render::Renderer;
+use sim_bridge::{Environment, TaskDef};
 
 /// Distinct colours in an RGB image.
 fn colours(rgb: &[u8]) -> usize {
@@ -67,7 +67,7 @@ fn frames_of_a_real_task_have_the_size_show_the_scene_and_follow_the_state() {
     let mut env = sim_bridge::SuiteEnv::new("cartpole-balance", 7).unwrap();
     let mut obs = [0.0; 5];
     env.reset(&mut obs);
-    let mut a = Renderer::new("cartpole-balance", w, h, None).unwrap();
+    let mut a = Renderer::new(&TaskDef::builtin("cartpole-balance").unwrap(), w, h, None).unwrap();
     assert_eq!(a.camera(), "fixed");
     let mut frames = Vec::new();
     for _ in 0..3 {
@@ -87,14 +87,15 @@ fn frames_of_a_real_task_have_the_size_show_the_scene_and_follow_the_state() {
 
     // A second renderer (its own model and OpenGL context) draws the same state to the same
     // bytes: software rendering is deterministic.
-    let mut b = Renderer::new("cartpole-balance", w, h, None).unwrap();
+    let mut b = Renderer::new(&TaskDef::builtin("cartpole-balance").unwrap(), w, h, None).unwrap();
     let again = b.render(env.physics()).unwrap().to_vec();
     assert_eq!(again, a.render(env.physics()).unwrap());
 
     // Larger than the model's 640x480 offscreen buffer: the renderer enlarges it, and the far
     // corner is drawn (floor), not left empty.
     let (bw, bh) = (700, 500);
-    let mut big = Renderer::new("cartpole-balance", bw, bh, None).unwrap();
+    let mut big =
+        Renderer::new(&TaskDef::builtin("cartpole-balance").unwrap(), bw, bh, None).unwrap();
     let img = big.render(env.physics()).unwrap();
     assert_eq!(img.len(), (bw * bh * 3) as usize);
     let corner = &img[(((bh - 20) * bw + bw - 20) * 3) as usize..][..60];
@@ -107,18 +108,30 @@ fn frames_of_a_real_task_have_the_size_show_the_scene_and_follow_the_state() {
 #[test]
 fn cameras_are_the_models_and_an_unknown_one_lists_them() {
     assert_eq!(
-        sim_bridge::render::cameras("walker-walk").unwrap(),
+        sim_bridge::render::cameras(&TaskDef::builtin("walker-walk").unwrap()).unwrap(),
         ["side", "back", "free"]
     );
-    let e = Renderer::new("cartpole-balance", 32, 24, Some("nope")).unwrap_err();
+    let e = Renderer::new(
+        &TaskDef::builtin("cartpole-balance").unwrap(),
+        32,
+        24,
+        Some("nope"),
+    )
+    .unwrap_err();
     let text = e.to_string();
     assert!(
         text.contains("`nope`") && text.contains("fixed, lookatcart, free"),
         "{text}"
     );
-    let r = Renderer::new("hopper-stand", 32, 24, Some("back")).unwrap();
+    let r = Renderer::new(
+        &TaskDef::builtin("hopper-stand").unwrap(),
+        32,
+        24,
+        Some("back"),
+    )
+    .unwrap();
     assert_eq!(r.camera(), "back");
-    assert!(Renderer::new("hopper-stand", 0, 24, None).is_err());
+    assert!(Renderer::new(&TaskDef::builtin("hopper-stand").unwrap(), 0, 24, None).is_err());
 }
 
 #[test]

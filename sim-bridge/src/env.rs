@@ -3,7 +3,7 @@
 use crate::error::SimError;
 use crate::numpy_rng::RandomState;
 use crate::physics::{Physics, Sync};
-use crate::tasks::{self, Task};
+use crate::task::Task;
 use crate::{Environment, Step, TaskSpec};
 
 /// A MuJoCo environment: model, task logic (a task file's, or during the move to files a
@@ -76,27 +76,6 @@ impl SuiteEnv {
             file: p.file,
             step_count: None,
         }
-    }
-
-    /// The Rust task logic of a Control Suite task (kept while the task files are checked
-    /// against it).
-    #[cfg(test)]
-    pub(crate) fn rust(task: &str, seed: u32) -> Result<Self, SimError> {
-        let entry = tasks::entry(task)?;
-        let physics = Physics::load(entry.domain)?;
-        let task_logic = entry.build(&physics)?;
-        let nu = physics.model().ffi().nu as usize;
-        Ok(Self::from_parts(Parts {
-            spec: entry.spec(),
-            physics,
-            task: task_logic,
-            seed,
-            n_sub_steps: entry.n_sub_steps,
-            gymnasium: false,
-            actuators: (0..nu).collect(),
-            scale: None,
-            file: entry.name.to_string(),
-        }))
     }
 
     /// The simulation, for benchmarks and diagnostics.

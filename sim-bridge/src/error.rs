@@ -29,9 +29,6 @@ pub enum SimError {
     #[error("MuJoCo could not load {}: {message}", path.display())]
     ModelLoad { path: PathBuf, message: String },
 
-    #[error("{task}: the model does not match dm_control 1.0.50's ({detail})")]
-    ModelMismatch { task: &'static str, detail: String },
-
     /// A task file that cannot be used: which file, which key, why (one line).
     #[error("{file}: {key}: {message}")]
     TaskFile {

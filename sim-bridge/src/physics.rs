@@ -11,7 +11,7 @@
 //!   dm_control.
 
 use mujoco_rs::mujoco_c::{mjtDisableBit, mjtIntegrator};
-use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
+use mujoco_rs::prelude::{MjData, MjModel};
 
 use crate::assets;
 use crate::error::SimError;
@@ -235,21 +235,5 @@ impl Physics {
 
     pub fn sensordata(&self) -> &[f64] {
         self.data.sensordata()
-    }
-
-    /// The id of a named object, or an error saying the model is not the expected one.
-    pub fn id(&self, task: &'static str, kind: MjtObjBase, name: &str) -> Result<usize, SimError> {
-        self.model()
-            .name_to_id(kind, name)
-            .ok_or_else(|| SimError::ModelMismatch {
-                task,
-                detail: format!("no {kind:?} named '{name}'"),
-            })
-    }
-
-    /// The first `sensordata` index of a named sensor.
-    pub fn sensor_adr(&self, task: &'static str, name: &str) -> Result<usize, SimError> {
-        let id = self.id(task, MjtObjBase::mjOBJ_SENSOR, name)?;
-        Ok(self.model().sensor_adr()[id] as usize)
     }
 }

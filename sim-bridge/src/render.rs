@@ -51,10 +51,10 @@ pub enum RenderError {
         detail: String,
     },
     /// The camera name is not one of the model's.
-    #[error("{domain}.xml has no camera `{camera}`; its cameras are: {}", available.join(", "))]
+    #[error("{domain}'s model has no camera `{camera}`; its cameras are: {}", available.join(", "))]
     UnknownCamera {
         /// The model file stem.
-        domain: &'static str,
+        domain: String,
         /// The name asked for.
         camera: String,
         /// The valid names (the model's cameras, then `free`).
@@ -79,7 +79,7 @@ pub enum RenderError {
 pub struct Renderer {
     data: MjData<Box<MjModel>>,
     renderer: MjRenderer,
-    domain: &'static str,
+    domain: String,
     camera: String,
     width: u32,
     height: u32,
@@ -108,8 +108,8 @@ fn model_cameras(model: &MjModel) -> Vec<String> {
 }
 
 /// The cameras of `task`'s model, in id order (the first is the default), then `free`.
-pub fn cameras(task: &str) -> Result<Vec<String>, SimError> {
-    let model = crate::assets::load_model(crate::tasks::entry(task)?.domain)?;
+pub fn cameras(task: &crate::TaskDef) -> Result<Vec<String>, SimError> {
+    let model = task.load_visual_model()?;
     let mut names = model_cameras(&model);
     names.push(FREE_CAMERA.into());
     Ok(names)
@@ -119,7 +119,7 @@ pub fn cameras(task: &str) -> Result<Vec<String>, SimError> {
 /// none), with the name it goes by.
 fn pick_camera(
     model: &MjModel,
-    domain: &'static str,
+    domain: &str,
     name: Option<&str>,
 ) -> Result<(MjvCamera, String), RenderError> {
     let names = model_cameras(model);
@@ -130,7 +130,7 @@ fn pick_camera(
             Some(id) => Ok((MjvCamera::new_fixed(id), n.into())),
             None if n == FREE_CAMERA => Ok((MjvCamera::new_free(model), n.into())),
             None => Err(RenderError::UnknownCamera {
-                domain,
+                domain: domain.to_string(),
                 camera: n.into(),
                 available: names.into_iter().chain([FREE_CAMERA.into()]).collect(),
             }),
@@ -154,7 +154,7 @@ impl Renderer {
     /// A renderer of `task`'s model, `width` x `height` pixels, from `camera` (None: the
     /// default camera; see the module documentation).
     pub fn new(
-        task: &str,
+        task: &crate::TaskDef,
         width: u32,
         height: u32,
         camera: Option<&str>,
@@ -162,14 +162,14 @@ impl Renderer {
         if !(1..=MAX_SIZE).contains(&width) || !(1..=MAX_SIZE).contains(&height) {
             return Err(RenderError::Size { width, height });
         }
-        let domain = crate::tasks::entry(task)?.domain;
-        let mut model = Box::new(crate::assets::load_visual_model(domain)?);
+        let domain = task.name().to_string();
+        let mut model = Box::new(task.load_visual_model()?);
         // MuJoCo's offscreen buffer has the model's size (640x480 in the suite's models); a
         // larger picture needs a larger buffer, as dm_control tells its users to set in the XML.
         let global = &mut model.vis_mut().global;
         global.offwidth = global.offwidth.max(width as i32);
         global.offheight = global.offheight.max(height as i32);
-        let (mjv_camera, camera) = pick_camera(&model, domain, camera)?;
+        let (mjv_camera, camera) = pick_camera(&model, &domain, camera)?;
         let renderer = MjRenderer::builder()
             .width(width)
             .height(height)

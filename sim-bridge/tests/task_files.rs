@@ -29,7 +29,7 @@ fn trajectory_sha256(task: &str, seed: u32) -> String {
     let mut obs = vec![0.0; spec.obs_dim];
     let mut a = vec![0.0; spec.act_dim];
     let mut h = Sha256::new();
-    let mut put = |h: &mut Sha256, v: &[f64]| v.iter().for_each(|x| h.update(x.to_le_bytes()));
+    let put = |h: &mut Sha256, v: &[f64]| v.iter().for_each(|x| h.update(x.to_le_bytes()));
     let mut t = 0;
     for _ in 0..2 {
         env.reset(&mut obs);

@@ -220,6 +220,9 @@ fn lex(src: &str) -> Result<Vec<(Tok, Pos)>, SyntaxError> {
     Ok(out)
 }
 
+/// A call's positional and keyword arguments.
+type CallArgs = (Vec<Expr>, Vec<(String, Expr)>);
+
 /// Expressions nest at most this deep: a file cannot overflow the parser's stack.
 const MAX_DEPTH: usize = 64;
 
@@ -439,7 +442,7 @@ impl Parser {
         }
     }
 
-    fn args(&mut self) -> Result<(Vec<Expr>, Vec<(String, Expr)>), SyntaxError> {
+    fn args(&mut self) -> Result<CallArgs, SyntaxError> {
         let (mut args, mut kwargs) = (Vec::new(), Vec::<(String, Expr)>::new());
         while !self.is_op(")") {
             let keyword = match (self.peek(), self.toks.get(self.at + 1)) {

@@ -11,8 +11,6 @@ mod expr;
 mod format;
 mod plant;
 mod program;
-#[cfg(test)]
-mod tests;
 
 use std::path::{Path, PathBuf};
 
@@ -371,6 +369,25 @@ impl TaskDef {
         }
     }
 
+    /// The model with every visual asset (the skybox of the suite's models included), for a
+    /// renderer; its dynamics are those of the simulated model.
+    pub fn load_visual_model(&self) -> Result<mujoco_rs::prelude::MjModel, SimError> {
+        match &self.model {
+            Some(ModelRef::Suite(f)) => {
+                crate::assets::load_visual_model(f.strip_suffix(".xml").unwrap_or(f))
+            }
+            Some(ModelRef::Gymnasium(f)) => {
+                crate::assets::load_model_file(&crate::assets::gymnasium_dir().join(f))
+            }
+            Some(ModelRef::Path(p)) => crate::assets::load_model_file(p),
+            None => Err(bad(
+                &self.display_file(),
+                "plant",
+                "an external plant has no model to draw",
+            )),
+        }
+    }
+
     /// A fresh environment of this task, its `RandomState` seeded with `seed`.
     pub fn make(&self, seed: u32) -> Result<crate::SuiteEnv, SimError> {
         let file = self.display_file();
@@ -460,7 +477,10 @@ fn substeps(t: &TaskToml, timestep: f64, file: &str) -> Result<usize, SimError> 
             // dm_control's compute_n_steps: the control timestep must be a whole number of
             // physics timesteps.
             let n = (c / timestep).round();
-            if !(c.is_finite() && n >= 1.0 && n <= 100_000.0 && ((c / timestep) - n).abs() < 1e-8) {
+            if !(c.is_finite()
+                && (1.0..=100_000.0).contains(&n)
+                && ((c / timestep) - n).abs() < 1e-8)
+            {
                 return Err(bad(
                     file,
                     "control_timestep",
@@ -502,11 +522,10 @@ fn episode_steps(t: &TaskToml, control_timestep: f64, file: &str) -> Result<usiz
     }
 }
 
-fn actuators(
-    t: &TaskToml,
-    physics: &Physics,
-    file: &str,
-) -> Result<(Vec<usize>, Vec<(f64, f64)>), SimError> {
+/// The actuator ids of the action, and each one's control range.
+type ActionMap = (Vec<usize>, Vec<(f64, f64)>);
+
+fn actuators(t: &TaskToml, physics: &Physics, file: &str) -> Result<ActionMap, SimError> {
     let m = physics.model();
     let nu = m.ffi().nu as usize;
     let ids: Vec<usize> = match &t.actuators {
@@ -546,7 +565,7 @@ fn actuators(
     for &id in &ids {
         let name = m.id_to_name(MjtObjBase::mjOBJ_ACTUATOR, id).unwrap_or("?");
         let [lo, hi] = m.actuator_ctrlrange()[id];
-        if !m.actuator_ctrllimited()[id] || !(lo < hi) {
+        if !m.actuator_ctrllimited()[id] || lo >= hi || lo.is_nan() || hi.is_nan() {
             return Err(bad(
                 file,
                 "actuators",

@@ -6,7 +6,7 @@ use super::expr::{self, Expr, Statement};
 use super::program::{BindError, Binder, Defines, Model, Op, Phase, Program, Src, State};
 use crate::numpy_rng::RandomState;
 use crate::physics::{Physics, Sync};
-use crate::tasks::Task;
+use crate::task::Task;
 
 /// A part of the file that failed to bind: which key, and why.
 #[derive(Clone, Debug, PartialEq)]
@@ -256,9 +256,7 @@ impl FileTask {
                     }
                 }
                 Init::RandomizeLimitedAndRotational => {
-                    crate::tasks::randomizers::randomize_limited_and_rotational_joints(
-                        physics, random,
-                    )
+                    crate::randomizers::randomize_limited_and_rotational_joints(physics, random)
                 }
                 Init::RandomizeLimited => {
                     let njnt = physics.model().jnt_limited().len();

@@ -1545,17 +1545,14 @@ impl<'a> Binder<'a> {
             given.push((k.as_str(), v));
         }
         let get = |k: &str| given.iter().find(|(g, _)| *g == k).map(|(_, v)| *v);
-        let defaults = if func == "uniform" {
-            (0.0, 1.0)
-        } else {
-            (0.0, 1.0)
-        };
+        // uniform(0, 1) and normal(0, 1), as numpy's defaults.
+        let defaults = (0.0, 1.0);
         let (a_key, b_key) = if func == "uniform" {
             ("low", "high")
         } else {
             ("loc", "scale")
         };
-        let mut operand = |s: &mut Self, k: &str, d: f64| -> Result<usize> {
+        let operand = |s: &mut Self, k: &str, d: f64| -> Result<usize> {
             match get(k) {
                 Some(e) => s.bind(e),
                 None => Ok(s.prog.constant(&[d])),
