@@ -145,9 +145,9 @@ fn main() {
 /// observations, rewards 1 (what the device does with them costs the same whatever they are).
 fn trainer_input(warmup: u64, interval: u64, steps: u64) -> Vec<u8> {
     use mpo_frames::{START_LEN, encode, kind};
-    let row = mpo_host::tasks::row("cartpole-balance", "mcu").unwrap();
+    let row = mpo_host::table::row("cartpole-balance", "mcu").unwrap();
     let settings = mpo_host::commands::defaults(row);
-    let mut schedule = mpo_host::train::agent_schedule(&settings);
+    let mut schedule = mpo_host::trainer::agent_schedule(&settings);
     schedule.warmup_steps = warmup;
     schedule.update_interval = interval;
     let mut out = Vec::new();
@@ -259,7 +259,7 @@ fn trainer_report() {
 
 /// Multiply-adds of one update of the mcu learner (half its network FLOPs).
 fn mcu_macs_per_update() -> u64 {
-    let row = mpo_host::tasks::row("cartpole-balance", "mcu").unwrap();
+    let row = mpo_host::table::row("cartpole-balance", "mcu").unwrap();
     let cfg = mpo_host::commands::defaults(row).mpo.to_config();
     let mut l: Box<mpo_core::learner::Learner<5, 1, 1, 32, 32, 32, 32, 32, 1, 1, 8, 8>> =
         bytemuck::zeroed_box();

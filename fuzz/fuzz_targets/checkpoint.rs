@@ -8,12 +8,12 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use libfuzzer_sys::fuzz_target;
-use mpo_core::learner::Learner;
-use mpo_core::replay::Replay;
 use mpo_fuzz::checkpoint::{FIX_SUMS, NAMES, decode};
 use mpo_host::checkpoint::{self, Verified};
 use mpo_host::commands::{self, Flags};
-use mpo_host::tasks::{self, Row, RowVisitor};
+use mpo_host::rows;
+use mpo_host::registry;
+use mpo_host::training::TrainingInit;
 
 fuzz_target!(|data: &[u8]| {
     let (flags, given) = decode(data);
@@ -52,49 +52,29 @@ fuzz_target!(|data: &[u8]| {
     }
     let _ = checkpoint::unhex32(&v.meta.collector_rng);
     let _ = checkpoint::unhex32(&v.meta.sampler_rng);
-    let _ = tasks::visit(&v.meta.settings.task, &v.meta.settings.net, Restore(&v));
+    restore(&v);
 });
 
-/// Restores the checkpoint into a learner and replay of its row, as `Trainer::new` does.
-struct Restore<'a>(&'a Verified);
-
-impl RowVisitor for Restore<'_> {
-    type Out = ();
-    fn visit<
-        const OBS: usize,
-        const ACT: usize,
-        const TRI: usize,
-        const AH1: usize,
-        const AH2: usize,
-        const QH1: usize,
-        const QH2: usize,
-        const BC: usize,
-        const C: usize,
-        const L: usize,
-        const M: usize,
-        const N: usize,
-        const CAP: usize,
-    >(
-        self,
-        _row: &'static Row,
-    ) {
-        // The larger rows' replays take hundreds of megabytes per input: the tiny row (whose
-        // checkpoints the corpus holds) exercises the same code.
-        if CAP > 50_000 {
-            return;
-        }
-        let v = self.0;
-        let mut learner: Box<Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>> =
-            bytemuck::zeroed_box();
-        if learner
-            .init(v.meta.settings.mpo.to_config(), v.meta.settings.seed as u64)
-            .is_err()
-        {
-            return;
-        }
-        let mut replay: Box<Replay<CAP, OBS, ACT>> = bytemuck::zeroed_box();
-        if let Err(e) = v.restore(&mut learner, &mut replay) {
-            let _ = e.to_string();
-        }
+/// Restores the checkpoint into a trainer of its sizes, as `mpo train --resume` does.
+fn restore(v: &Verified) {
+    // The larger rows' replays take hundreds of megabytes per input: the tiny row (whose
+    // checkpoints the corpus holds) exercises the same code.
+    if v.meta.sizes.replay_capacity > 50_000 {
+        return;
+    }
+    let (Ok(instance), Ok(task)) = (
+        registry::find(&v.meta.sizes),
+        rows::task_of_checkpoint(&v.meta, &v.dir),
+    ) else {
+        return;
+    };
+    let init = TrainingInit {
+        settings: &v.meta.settings,
+        task: &task,
+        resume: Some(v),
+        threads: 1,
+    };
+    if let Err(e) = (instance.trainer)(init) {
+        let _ = e.to_string();
     }
 }

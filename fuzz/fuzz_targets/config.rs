@@ -12,7 +12,7 @@ use mpo_fuzz::config::{NET, RESUME, SEED, STEPS, TASK};
 use mpo_host::checkpoint::{Counters, FORMAT, Meta, VERSION};
 use mpo_host::commands::{self, Flags};
 use mpo_host::settings::{self, Settings};
-use mpo_host::tasks;
+use mpo_host::table;
 
 fuzz_target!(|data: &[u8]| {
     let Some((&flags, rest)) = data.split_first() else {
@@ -38,6 +38,7 @@ fuzz_target!(|data: &[u8]| {
     };
     let f = Flags {
         task: (flags & TASK != 0).then(|| "hopper-stand".into()),
+        task_file: None,
         net: (flags & NET != 0).then(|| "tiny".into()),
         seed: (flags & SEED != 0).then_some(7),
         steps: (flags & STEPS != 0).then_some(4000),
@@ -50,17 +51,18 @@ fuzz_target!(|data: &[u8]| {
         }
     };
     match commands::resolve_fresh(&layers) {
-        Ok(s) => round_trip(&s),
+        Ok(r) => round_trip(&r.settings),
         Err(e) => {
             let _ = e.to_string();
         }
     }
     if flags & RESUME != 0 {
-        let row = tasks::row("cartpole-balance", "tiny").unwrap();
+        let row = table::row("cartpole-balance", "tiny").unwrap();
         let meta = Meta {
             format: FORMAT.into(),
             version: VERSION,
             settings: commands::defaults(row),
+            task_file: None,
             sizes: row.sizes,
             env_steps: 2000,
             episodes: 2,

@@ -35,7 +35,7 @@ use sha2::{Digest, Sha256};
 
 use crate::metrics::{MetricsRow, StatsAccumulator};
 use crate::settings::Settings;
-use crate::tasks::Sizes;
+use crate::sizes::Sizes;
 
 /// Format identifier in `meta.json`.
 pub const FORMAT: &str = "mpo-checkpoint";
@@ -125,6 +125,11 @@ pub struct Meta {
     pub version: u32,
     /// The run's resolved settings.
     pub settings: Settings,
+    /// The task file the run trained on (absent for a built-in task): where it was, its text
+    /// and the hash of text and model, so a changed file is refused rather than silently
+    /// evaluated on another plant.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub task_file: Option<TaskFileRecord>,
     /// The learner's sizes (checked against the task table on load).
     pub sizes: Sizes,
     /// Environment steps taken.
@@ -149,6 +154,53 @@ pub struct Meta {
     pub metrics: Vec<MetricsRow>,
     /// sha256 of the online actor and critic (see [`params_sha256`]).
     pub params_sha256: String,
+}
+
+/// A task file as a checkpoint records it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TaskFileRecord {
+    /// Its absolute path when the run started.
+    pub path: PathBuf,
+    /// sha256 of its text and its model's files (`sim_bridge::TaskDef::sha256`).
+    pub sha256: String,
+    /// Its text.
+    pub text: String,
+}
+
+impl Meta {
+    /// The run-level part of a checkpoint's metadata; a trainer fills in its state
+    /// (`crate::training::Training::meta`).
+    pub fn new(
+        settings: Settings,
+        task_file: Option<TaskFileRecord>,
+        sizes: Sizes,
+        metrics: Vec<MetricsRow>,
+        wall_s: f64,
+    ) -> Self {
+        Self {
+            format: FORMAT.into(),
+            version: VERSION,
+            settings,
+            task_file,
+            sizes,
+            env_steps: 0,
+            episodes: 0,
+            updates: 0,
+            wall_s,
+            learner_rng: String::new(),
+            collector_rng: String::new(),
+            sampler_rng: String::new(),
+            replay: Counters {
+                head: 0,
+                len: 0,
+                inserted: 0,
+                current_episode: 0,
+            },
+            stats: StatsAccumulator::default(),
+            metrics,
+            params_sha256: String::new(),
+        }
+    }
 }
 
 /// Hex of bytes.
@@ -355,24 +407,6 @@ pub fn run_dir_of(checkpoint_dir: &Path) -> PathBuf {
     }
 }
 
-/// fsync of a directory, so the entries created, renamed or removed in it are durable.
-pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    let dir = if dir.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        dir
-    };
-    fs::File::open(dir)?.sync_all()
-}
-
-/// Writes `bytes` to a new file at `path` and fsyncs it (not its directory).
-fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut f = fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
-}
-
 /// The pause of the [`PAUSE_ENV`] test hook, read once per [`save`].
 fn test_pause() -> Option<std::time::Duration> {
     let ms: u64 = std::env::var(PAUSE_ENV).ok()?.parse().ok()?;
@@ -416,10 +450,10 @@ pub fn settle(run_dir: &Path) -> Result<(), CheckpointError> {
         rename(&old, &fin)?;
     }
     // `checkpoint/` is the newest complete one and durable; the rest are older or partial.
-    sync_dir(run_dir).map_err(io(run_dir))?;
+    crate::durable::sync_dir(run_dir).map_err(io(run_dir))?;
     remove(&tmp)?;
     remove(&old)?;
-    sync_dir(run_dir).map_err(io(run_dir))
+    crate::durable::sync_dir(run_dir).map_err(io(run_dir))
 }
 
 /// Writes a checkpoint of `learner`, `replay` and `meta` into `run_dir/checkpoint`,
@@ -533,13 +567,13 @@ pub fn save<
         for (name, bytes) in FILES.iter().zip(&contents) {
             pause();
             let p = tmp.join(name);
-            write_synced(&p, bytes).map_err(io(&p))?;
+            crate::durable::write_synced(&p, bytes).map_err(io(&p))?;
             sums.push_str(&format!("{}  {name}\n", sha256_hex(bytes)));
         }
         pause();
         let p = tmp.join(SUMS);
-        write_synced(&p, sums.as_bytes()).map_err(io(&p))?;
-        sync_dir(&tmp).map_err(io(&tmp))
+        crate::durable::write_synced(&p, sums.as_bytes()).map_err(io(&p))?;
+        crate::durable::sync_dir(&tmp).map_err(io(&tmp))
     })();
     if let Err(e) = written {
         // Best effort: free the space of the partial write (a full disk is the usual cause).
@@ -556,11 +590,11 @@ pub fn save<
     }
     pause();
     fs::rename(&tmp, &final_dir).map_err(io(&tmp))?;
-    sync_dir(run_dir).map_err(io(run_dir))?;
+    crate::durable::sync_dir(run_dir).map_err(io(run_dir))?;
     pause();
     if old.exists() {
         fs::remove_dir_all(&old).map_err(io(&old))?;
-        sync_dir(run_dir).map_err(io(run_dir))?;
+        crate::durable::sync_dir(run_dir).map_err(io(run_dir))?;
     }
     Ok(())
 }
@@ -725,6 +759,14 @@ pub fn verify(
 impl Verified {
     fn reader(&self, name: &'static str) -> Result<Reader<'_>, CheckpointError> {
         Reader::new(self.dir.join(name), &self.files[name])
+    }
+
+    /// Loads the online policy alone (what the inference commands need). Every file was
+    /// checked against SHA256SUMS when the checkpoint was opened; the tensors' names and
+    /// shapes are checked here against `meta.json`'s sizes.
+    pub fn load_actor<P: Params>(&self, actor: &mut P) -> Result<(), CheckpointError> {
+        let r = self.reader("params.safetensors")?;
+        r.params("actor", actor, &actor_layout(&self.meta.sizes))
     }
 
     /// Loads the online and target networks (all `eval` needs).

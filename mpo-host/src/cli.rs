@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
-use crate::link::ControllerKind;
+use crate::link::LinkArgs;
 
 /// MPO (Maximum a Posteriori Policy Optimisation) on the DeepMind Control Suite.
 #[derive(Debug, Parser)]
@@ -42,8 +42,9 @@ pub enum Command {
     /// `MPO_FIRMWARE_WEIGHTS=OUT/policy.rs cargo build --release --manifest-path
     /// freestanding/firmware/Cargo.toml --target x86_64-unknown-linux-gnu` (docs/firmware.md).
     Export(ExportArgs),
-    /// List the Control Suite tasks with their observation and action sizes and table rows.
-    Tasks,
+    /// List the built-in tasks with their observation and action sizes and rows (and, with
+    /// --task-file, a task file's).
+    Tasks(TasksArgs),
     /// Draw the learning curves of several runs (e.g. seeds) into one PNG.
     Plot(PlotArgs),
     /// Run a checkpoint's policy on its task, paced at a control rate (default 1 kHz wall
@@ -63,37 +64,6 @@ pub enum Command {
     /// parameters. Prints `ready` once listening and a `stats ...` line on exit (SIGINT or
     /// SIGTERM).
     Controller(ControllerArgs),
-}
-
-/// Where the policy runs, and how the host reaches a controller process.
-#[derive(Debug, Args, Clone)]
-pub struct LinkArgs {
-    /// Where the policy runs: in this process, or in a controller process over iceoryx2 shared
-    /// memory (started by mpo itself unless --attach is given).
-    #[arg(long, value_enum, default_value_t = ControllerKind::InProcess)]
-    pub controller: ControllerKind,
-    /// With --controller ipc: use the controller already serving RUN_ID (`mpo controller
-    /// --run RUN_ID --task ...`) instead of starting one; it is picked up whenever it
-    /// (re)appears.
-    #[arg(long, value_name = "RUN_ID")]
-    pub attach: Option<String>,
-    /// With --controller ipc: how both sides wait for each other: `event` (sleep until
-    /// notified) or `busy-poll` (spin; lowest latency, burns a core: isolated cores only).
-    #[arg(long, value_name = "MODE", default_value = "event", value_parser = ["event", "busy-poll"])]
-    pub wait: String,
-    /// With --controller ipc: deadline of one action request in microseconds; a later answer
-    /// is a miss and the safe action (zero) is applied [default: 100000 in lockstep and
-    /// training, half the period when paced].
-    #[arg(long, value_name = "US")]
-    pub deadline_us: Option<u64>,
-    /// With --controller ipc and --wait event: spin this many microseconds on the answer
-    /// before sleeping. An answer within it spares this process a wake-up (on a VM about a
-    /// third of the round trip); costs at most that much CPU time per request.
-    #[arg(long, value_name = "US", default_value_t = 0)]
-    pub spin_us: u64,
-    /// With --attach: seconds to wait for the controller to appear.
-    #[arg(long, value_name = "S", default_value_t = 60.0)]
-    pub connect_timeout: f64,
 }
 
 /// `mpo run`.
@@ -142,11 +112,14 @@ pub struct ControllerArgs {
     /// Run id to serve: letters, digits and '-' (a host attaches with `--attach RUN_ID`).
     #[arg(long, value_name = "RUN_ID")]
     pub run: String,
-    /// Task whose policy size to serve.
-    #[arg(long, default_value = crate::tasks::DEFAULT_TASK)]
+    /// Built-in task whose policy size to serve.
+    #[arg(long, default_value = crate::table::DEFAULT_TASK, conflicts_with = "task_file")]
     pub task: String,
-    /// Network variant of the task table row.
-    #[arg(long, default_value = crate::tasks::DEFAULT_NET)]
+    /// A task file instead of a built-in task.
+    #[arg(long, value_name = "FILE.toml")]
+    pub task_file: Option<PathBuf>,
+    /// Network variant of the task's row.
+    #[arg(long, default_value = crate::table::DEFAULT_NET)]
     pub net: String,
     /// `event` or `busy-poll` (must match the host's --wait).
     #[arg(long, value_name = "MODE", default_value = "event", value_parser = ["event", "busy-poll"])]
@@ -154,6 +127,15 @@ pub struct ControllerArgs {
     /// SCHED_FIFO priority (1-99); not with busy-poll.
     #[arg(long, value_name = "PRIO")]
     pub realtime: Option<i32>,
+}
+
+/// `mpo tasks`.
+#[derive(Debug, Args)]
+pub struct TasksArgs {
+    /// Also list (and check) these task files: their sizes, rows, and whether this build has
+    /// a learner of each row's sizes.
+    #[arg(long, value_name = "FILE.toml")]
+    pub task_file: Vec<PathBuf>,
 }
 
 /// `mpo export`.
@@ -204,16 +186,24 @@ pub struct PlotArgs {
 /// `mpo train`.
 #[derive(Debug, Args)]
 pub struct TrainArgs {
-    /// Control Suite task [default: cartpole-balance].
-    #[arg(long)]
+    /// Built-in task (`mpo tasks` lists them) [default: cartpole-balance].
+    #[arg(long, conflicts_with = "task_file")]
     pub task: Option<String>,
-    /// Network variant of the task table row [default: default].
+    /// Train on a task file instead: a TOML file beside your MJCF model that says what the
+    /// task observes, how it is rewarded, when it ends and how it starts (docs/task-files.md).
+    /// Its sizes choose the learner; a build without a learner of those sizes says so (exit
+    /// status 3) and `./mpo` rebuilds with them.
+    #[arg(long, value_name = "FILE.toml")]
+    pub task_file: Option<PathBuf>,
+    /// Network variant of the task's row [default: default; a task file's rows are its
+    /// `[rows.NAME]` tables].
     #[arg(long)]
     pub net: Option<String>,
     /// Seed of the networks, the exploration noise and the training environment [default: 0].
     #[arg(long)]
     pub seed: Option<u32>,
-    /// Total environment steps, a multiple of the 1000-step episode [default: per task].
+    /// Total environment steps, a multiple of the episode length when every episode has it
+    /// [default: the row's].
     #[arg(long)]
     pub steps: Option<u64>,
     /// Run directory [default: runs/<task>-seed<seed>; with --resume, the resumed directory].

@@ -4,8 +4,9 @@
 //! successive points of a learning curve differ only by the policy, and `mpo eval` on a
 //! checkpoint reproduces the run's last evaluation exactly.
 
-use mpo_core::learner::Learner;
-use sim_bridge::SimError;
+use sim_bridge::{Environment, SimError, TaskDef};
+
+use crate::policy::Policy;
 
 /// Environment seed of evaluation episode `i` of a run seeded `seed`:
 /// `(2^31 + 1000 seed + i) mod 2^32`, far from the training environment's seed `seed`.
@@ -15,44 +16,21 @@ pub fn eval_env_seed(seed: u32, i: u32) -> u32 {
         .wrapping_add(i)
 }
 
-/// Returns of `episodes` evaluation episodes of `learner`'s mean action.
-pub fn evaluate<
-    const OBS: usize,
-    const ACT: usize,
-    const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
-    const BC: usize,
-    const C: usize,
-    const L: usize,
-    const M: usize,
-    const N: usize,
->(
-    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
-    task: &str,
-    seed: u32,
-    episodes: u32,
-) -> Result<Vec<f64>, SimError> {
-    evaluate_with(task, seed, episodes, |o, a| learner.mean_action(o, a))
-}
-
 /// Returns of `episodes` evaluation episodes of the policy `act` (observation to action; the
-/// action is clipped to the actuator range [-1, 1] before it is applied).
-pub fn evaluate_with<const OBS: usize, const ACT: usize>(
-    task: &str,
+/// action, in the policy's `[-1, 1]`, is clipped there before the environment maps it onto the
+/// actuators). Episode `i` runs on a fresh environment seeded [`eval_env_seed`]`(seed, i)`.
+pub fn evaluate_with(
+    task: &TaskDef,
     seed: u32,
     episodes: u32,
-    mut act_fn: impl FnMut(&[f32; OBS], &mut [f32; ACT]),
+    act_fn: &mut dyn FnMut(&[f32], &mut [f32]),
 ) -> Result<Vec<f64>, SimError> {
+    let spec = task.spec();
     let mut returns = Vec::with_capacity(episodes as usize);
-    let mut obs64 = [0f64; OBS];
-    let mut obs = [0f32; OBS];
-    let mut act = [0f32; ACT];
-    let mut act64 = [0f64; ACT];
+    let (mut obs64, mut obs) = (vec![0f64; spec.obs_dim], vec![0f32; spec.obs_dim]);
+    let (mut act, mut act64) = (vec![0f32; spec.act_dim], vec![0f64; spec.act_dim]);
     for i in 0..episodes {
-        let mut env = sim_bridge::make(task, eval_env_seed(seed, i))?;
+        let mut env = task.make(eval_env_seed(seed, i))?;
         env.reset(&mut obs64);
         let mut ret = 0.0;
         loop {
@@ -72,6 +50,16 @@ pub fn evaluate_with<const OBS: usize, const ACT: usize>(
         returns.push(ret);
     }
     Ok(returns)
+}
+
+/// Returns of `episodes` evaluation episodes of `policy`'s mean action.
+pub fn evaluate(
+    policy: &dyn Policy,
+    task: &TaskDef,
+    seed: u32,
+    episodes: u32,
+) -> Result<Vec<f64>, SimError> {
+    evaluate_with(task, seed, episodes, &mut |o, a| policy.mean_action(o, a))
 }
 
 /// Mean and population standard deviation.

@@ -34,6 +34,37 @@ pub enum ControllerKind {
     Ipc,
 }
 
+/// Where the policy runs, and how the host reaches a controller process.
+#[derive(Debug, clap::Args, Clone)]
+pub struct LinkArgs {
+    /// Where the policy runs: in this process, or in a controller process over iceoryx2 shared
+    /// memory (started by mpo itself unless --attach is given).
+    #[arg(long, value_enum, default_value_t = ControllerKind::InProcess)]
+    pub controller: ControllerKind,
+    /// With --controller ipc: use the controller already serving RUN_ID (`mpo controller
+    /// --run RUN_ID --task ...`) instead of starting one; it is picked up whenever it
+    /// (re)appears.
+    #[arg(long, value_name = "RUN_ID")]
+    pub attach: Option<String>,
+    /// With --controller ipc: how both sides wait for each other: `event` (sleep until
+    /// notified) or `busy-poll` (spin; lowest latency, burns a core: isolated cores only).
+    #[arg(long, value_name = "MODE", default_value = "event", value_parser = ["event", "busy-poll"])]
+    pub wait: String,
+    /// With --controller ipc: deadline of one action request in microseconds; a later answer
+    /// is a miss and the safe action (zero) is applied [default: 100000 in lockstep and
+    /// training, half the period when paced].
+    #[arg(long, value_name = "US")]
+    pub deadline_us: Option<u64>,
+    /// With --controller ipc and --wait event: spin this many microseconds on the answer
+    /// before sleeping. An answer within it spares this process a wake-up (on a VM about a
+    /// third of the round trip); costs at most that much CPU time per request.
+    #[arg(long, value_name = "US", default_value_t = 0)]
+    pub spin_us: u64,
+    /// With --attach: seconds to wait for the controller to appear.
+    #[arg(long, value_name = "S", default_value_t = 60.0)]
+    pub connect_timeout: f64,
+}
+
 /// How to reach the controller process.
 #[derive(Clone, Debug)]
 pub struct LinkOptions {
@@ -49,6 +80,39 @@ pub struct LinkOptions {
     pub connect_timeout: Duration,
     /// `SCHED_FIFO` priority for a spawned controller.
     pub realtime: Option<i32>,
+}
+
+/// Which policy a controller process serves: the run's task (built-in or a file) and network
+/// variant, from which it finds the policy's sizes as the host does.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ControllerTarget {
+    /// The task's name.
+    pub task: String,
+    /// The network variant.
+    pub net: String,
+    /// The task file, for a task that is not built in.
+    pub task_file: Option<PathBuf>,
+}
+
+impl ControllerTarget {
+    /// The target of a run's settings.
+    pub fn of(s: &crate::settings::Settings) -> Self {
+        Self {
+            task: s.task.clone(),
+            net: s.net.clone(),
+            task_file: s.task_file.clone(),
+        }
+    }
+
+    /// The `mpo controller` flags that name it.
+    pub fn args(&self) -> Vec<String> {
+        let mut a = match &self.task_file {
+            Some(f) => vec!["--task-file".into(), f.display().to_string()],
+            None => vec!["--task".into(), self.task.clone()],
+        };
+        a.extend(["--net".into(), self.net.clone()]);
+        a
+    }
 }
 
 /// Why the link could not be set up.
@@ -196,8 +260,7 @@ impl Link {
     /// Starts a controller process for `task`/`net` (or attaches to the one given in
     /// `opts.attach`) and waits until it listens.
     pub fn start(
-        task: &str,
-        net: &str,
+        target: &ControllerTarget,
         obs_len: usize,
         act_len: usize,
         opts: &LinkOptions,
@@ -221,20 +284,10 @@ impl Link {
             None => {
                 let exe = std::env::current_exe()
                     .map_err(|e| LinkSetupError::Spawn(format!("own executable: {e}")))?;
-                let mut args: Vec<String> = [
-                    "controller",
-                    "--run",
-                    run.as_str(),
-                    "--task",
-                    task,
-                    "--net",
-                    net,
-                    "--wait",
-                    opts.wait.name(),
-                ]
-                .iter()
-                .map(|s| s.to_string())
-                .collect();
+                let mut args: Vec<String> = vec!["controller".into(), "--run".into()];
+                args.push(run.as_str().into());
+                args.extend(target.args());
+                args.extend(["--wait".into(), opts.wait.name().into()]);
                 if let Some(p) = opts.realtime {
                     args.extend(["--realtime".to_string(), p.to_string()]);
                 }
@@ -253,7 +306,7 @@ impl Link {
             restarts: 0,
             log: OutageLog::new(),
         };
-        link.wait_connected(opts.connect_timeout, task, net)?;
+        link.wait_connected(opts.connect_timeout, target)?;
         Ok(link)
     }
 
@@ -264,17 +317,17 @@ impl Link {
     fn wait_connected(
         &mut self,
         timeout: Duration,
-        task: &str,
-        net: &str,
+        target: &ControllerTarget,
     ) -> Result<(), LinkSetupError> {
         let t0 = Instant::now();
         let mut told = false;
         while !self.plant().controller_connected() {
             if !told && self.spawned.is_none() {
                 eprintln!(
-                    "waiting for the controller of run {}: start it with `mpo controller --run {} --task {task} --net {net}`",
+                    "waiting for the controller of run {}: start it with `mpo controller --run {} {}`",
                     self.run.as_str(),
-                    self.run.as_str()
+                    self.run.as_str(),
+                    target.args().join(" ")
                 );
                 told = true;
             }
@@ -451,7 +504,7 @@ impl LinkOptions {
     /// The link settings of `--controller ipc`, `None` in-process. Flags that only apply to a
     /// controller process are refused without `--controller ipc` rather than ignored.
     pub fn from_args(
-        a: &crate::cli::LinkArgs,
+        a: &LinkArgs,
         default_deadline: Duration,
         realtime: Option<i32>,
     ) -> Result<Option<Self>, String> {

@@ -4,7 +4,6 @@
 //! update's values are too noisy to read); the accumulator is part of the checkpoint, so a
 //! resumed run writes the same rows as an uninterrupted one (except the wall-clock columns).
 
-use std::io::Write;
 use std::path::Path;
 
 use mpo_core::learner::UpdateStats;
@@ -183,25 +182,6 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
         jsonl.push_str(&serde_json::Value::Object(obj).to_string());
         jsonl.push('\n');
     }
-    write_atomic(&dir.join("metrics.csv"), csv.as_bytes())?;
-    write_atomic(&dir.join("metrics.jsonl"), jsonl.as_bytes())
-}
-
-/// Writes a file through a temporary and a rename, so a reader (or a crash) never sees half:
-/// the temporary is fsynced before the rename and the directory after it, so once this
-/// returns the new contents survive a crash or power loss. On an error (a full disk, say) the
-/// temporary is removed and `path` keeps its previous contents.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension("tmp");
-    let written = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()
-    })();
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, path)?;
-    crate::checkpoint::sync_dir(path.parent().unwrap_or(Path::new(".")))
+    crate::durable::write_atomic(&dir.join("metrics.csv"), csv.as_bytes())?;
+    crate::durable::write_atomic(&dir.join("metrics.jsonl"), jsonl.as_bytes())
 }

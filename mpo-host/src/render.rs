@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 use sim_bridge::render::Renderer;
-use sim_bridge::{Environment, SimError, SuiteEnv};
+use sim_bridge::{Environment, SimError, TaskDef};
 
 use crate::caption;
 use crate::contact_sheet::{self, Tile};
@@ -122,21 +122,22 @@ pub struct FrameInfo {
 /// `on_frame`. Every episode runs to its end. Returns the episodes' returns and the time spent
 /// rendering.
 #[allow(clippy::too_many_arguments)]
-pub fn rollout<const OBS: usize, const ACT: usize>(
-    task: &str,
+pub fn rollout(
+    task: &TaskDef,
     seed: u32,
     episodes: u32,
     renderer: &mut Renderer,
-    mut act_fn: impl FnMut(&[f32; OBS], &mut [f32; ACT]),
+    act_fn: &mut dyn FnMut(&[f32], &mut [f32]),
     wanted: impl Fn(u32, u32) -> bool,
     mut on_frame: impl FnMut(FrameInfo, &[u8]) -> Result<(), RenderError>,
 ) -> Result<(Vec<f64>, Duration), RenderError> {
     let mut returns = Vec::with_capacity(episodes as usize);
     let mut rendering = Duration::ZERO;
-    let (mut obs64, mut obs) = ([0f64; OBS], [0f32; OBS]);
-    let (mut act, mut act64) = ([0f32; ACT], [0f64; ACT]);
+    let spec = task.spec();
+    let (mut obs64, mut obs) = (vec![0f64; spec.obs_dim], vec![0f32; spec.obs_dim]);
+    let (mut act, mut act64) = (vec![0f32; spec.act_dim], vec![0f64; spec.act_dim]);
     for episode in 0..episodes {
-        let mut env = SuiteEnv::new(task, eval_env_seed(seed, episode))?;
+        let mut env = task.make(eval_env_seed(seed, episode))?;
         env.reset(&mut obs64);
         let (mut ret, mut step, mut done) = (0.0, 0u32, false);
         loop {
@@ -207,10 +208,10 @@ fn timing(
 }
 
 /// `mpo render` for a loaded policy: the video and/or the contact sheet of `opts`.
-pub fn render<const OBS: usize, const ACT: usize>(
-    task: &str,
+pub fn render(
+    task: &TaskDef,
     checkpoint_env_steps: u64,
-    act_fn: impl FnMut(&[f32; OBS], &mut [f32; ACT]),
+    act_fn: &mut dyn FnMut(&[f32], &mut [f32]),
     opts: &RenderOptions,
 ) -> Result<RenderSummary, RenderError> {
     let started = Instant::now();
@@ -229,17 +230,12 @@ pub fn render<const OBS: usize, const ACT: usize>(
     if let Some(p) = &opts.strip {
         contact_sheet::check_path(p)?;
     }
-    let spec = sim_bridge::task_spec(task)?;
+    let spec = task.spec();
     let pictured = opts.steps.map_or(spec.episode_steps as u32, |s| {
         s.min(spec.episode_steps as u32)
     });
     let (every, fps) = timing(spec.control_timestep, opts.fps, format)?;
-    let mut renderer = Renderer::new(
-        &sim_bridge::TaskDef::builtin(task)?,
-        opts.width,
-        opts.height,
-        opts.camera.as_deref(),
-    )?;
+    let mut renderer = Renderer::new(task, opts.width, opts.height, opts.camera.as_deref())?;
     let (w, h) = (opts.width as usize, opts.height as usize);
     let mut video = match &opts.out {
         Some(p) => Some(Video::create(p, opts.width, opts.height, fps)?),
@@ -255,7 +251,7 @@ pub fn render<const OBS: usize, const ACT: usize>(
     let has_video = video.is_some();
     let (scale, mut frame, mut tiles, mut frames) =
         (caption::scale_for(h), Vec::new(), Vec::new(), 0u64);
-    let (returns, rendering) = rollout::<OBS, ACT>(
+    let (returns, rendering) = rollout(
         task,
         opts.seed,
         opts.episodes,
@@ -286,7 +282,8 @@ pub fn render<const OBS: usize, const ACT: usize>(
     let (return_mean, return_std) = mean_std(&returns);
     if let Some(p) = &opts.strip {
         let title = format!(
-            "{task}  checkpoint step {checkpoint_env_steps}  eval seed {}  return {}",
+            "{}  checkpoint step {checkpoint_env_steps}  eval seed {}  return {}",
+            task.name(),
             opts.seed,
             returns
                 .iter()
@@ -298,7 +295,7 @@ pub fn render<const OBS: usize, const ACT: usize>(
         contact_sheet::write_png(p, &sheet, sw, sh)?;
     }
     Ok(RenderSummary {
-        task: task.into(),
+        task: task.name().into(),
         checkpoint_env_steps,
         seed: opts.seed,
         episodes: opts.episodes,
@@ -352,41 +349,31 @@ impl EvaluationStrips {
 
     /// Opens a renderer for `task` once, so that a machine that cannot render says so before
     /// training starts rather than at the first sheet.
-    pub fn check(&self, task: &str) -> Result<(), RenderError> {
-        Renderer::new(
-            &sim_bridge::TaskDef::builtin(task)?,
-            self.width,
-            self.height,
-            None,
-        )?;
+    pub fn check(&self, task: &TaskDef) -> Result<(), RenderError> {
+        Renderer::new(task, self.width, self.height, None)?;
         Ok(())
     }
 
     /// After evaluation number `index` (0: the untrained policy) at `env_steps`: the sheet, if
     /// this evaluation is one of every `every`. Returns the file written.
     #[allow(clippy::too_many_arguments)]
-    pub fn after_evaluation<const OBS: usize, const ACT: usize>(
+    pub fn after_evaluation(
         &self,
         index: usize,
         env_steps: u64,
-        task: &str,
+        task: &TaskDef,
         seed: u32,
         run_dir: &Path,
-        act_fn: impl FnMut(&[f32; OBS], &mut [f32; ACT]),
+        act_fn: &mut dyn FnMut(&[f32], &mut [f32]),
     ) -> Result<Option<PathBuf>, RenderError> {
         if !index.is_multiple_of(self.every as usize) {
             return Ok(None);
         }
-        let episode_steps = sim_bridge::task_spec(task)?.episode_steps as u64;
+        let episode_steps = task.spec().episode_steps as u64;
         let at = evenly(episode_steps + 1, self.frames);
-        let mut renderer = Renderer::new(
-            &sim_bridge::TaskDef::builtin(task)?,
-            self.width,
-            self.height,
-            None,
-        )?;
+        let mut renderer = Renderer::new(task, self.width, self.height, None)?;
         let mut tiles = Vec::new();
-        let (returns, _) = rollout::<OBS, ACT>(
+        let (returns, _) = rollout(
             task,
             seed,
             1,
@@ -408,7 +395,8 @@ impl EvaluationStrips {
         })?;
         let path = dir.join(format!("step-{env_steps:09}.png"));
         let title = format!(
-            "{task}  step {env_steps}  eval episode 0  return {:.1}",
+            "{}  step {env_steps}  eval episode 0  return {:.1}",
+            task.name(),
             returns[0]
         );
         let (sheet, sw, sh) =

@@ -16,14 +16,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mpo_core::actor::Actor;
 use mpo_link::service::monotonic_ns;
 use serde::{Deserialize, Serialize};
-use sim_bridge::SimError;
+use sim_bridge::{Environment, SimError, TaskDef};
 
 use crate::eval::{eval_env_seed, mean_std};
-use crate::link::{ControllerKind, Link, LinkOptions, LinkReport, LinkSetupError};
+use crate::link::{
+    ControllerKind, ControllerTarget, Link, LinkOptions, LinkReport, LinkSetupError,
+};
+use crate::policy::Policy;
+use crate::progress::Progress;
 
 /// How the loop is timed.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -46,9 +48,9 @@ pub enum Limit {
 /// What `mpo run` was asked to do.
 pub struct RunRequest<'a> {
     /// Task of the checkpoint.
-    pub task: String,
-    /// Network variant (names the controller's policy size).
-    pub net: String,
+    pub task: TaskDef,
+    /// What a controller process serves (names the policy's sizes).
+    pub target: ControllerTarget,
     /// Environment steps the checkpoint was trained for (reported).
     pub checkpoint_env_steps: u64,
     /// Evaluation seed: episode i runs on `eval_env_seed(seed, i)`.
@@ -181,214 +183,169 @@ fn histogram() -> Histogram<u64> {
     Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("valid histogram bounds")
 }
 
-/// Runs `actor` (the checkpoint's online policy) on the task as `req` says.
-pub fn run<
-    const OBS: usize,
-    const ACT: usize,
-    const TRI: usize,
-    const H1: usize,
-    const H2: usize,
->(
-    actor: &Actor<OBS, ACT, TRI, H1, H2>,
-    req: RunRequest<'_>,
-) -> Result<RunSummary, RunError> {
-    let deadline = req.link.as_ref().map(|o| o.deadline);
-    let mut link = match &req.link {
-        Some(opts) => {
-            let mut link = Link::start(&req.task, &req.net, OBS, ACT, opts)?;
-            eprintln!(
-                "acting through controller process {} (run id {}, {} wait{}, deadline {} us)",
-                link.controller_pid()
-                    .map(|p| format!("pid {p}"))
-                    .unwrap_or_else(|| "attached".into()),
-                link.run_id(),
-                opts.wait.name(),
-                if opts.spin.is_zero() {
-                    String::new()
-                } else {
-                    format!(" after a {} us spin", opts.spin.as_micros())
-                },
-                opts.deadline.as_micros()
-            );
-            link.push(actor)?;
-            Some(link)
+/// Sleeps to the start of each period and measures how late it woke; counts steps that ran
+/// past their period.
+struct Pacer {
+    period_ns: u64,
+    next: u64,
+    overruns: u64,
+    lateness: Histogram<u64>,
+}
+
+impl Pacer {
+    fn new(pacing: Pacing) -> Self {
+        Self {
+            period_ns: match pacing {
+                Pacing::Lockstep => 0,
+                Pacing::Paced(hz) => (1e9 / hz).round().max(1.0) as u64,
+            },
+            next: 0,
+            overruns: 0,
+            lateness: histogram(),
         }
-        None => None,
+    }
+
+    /// The start of an episode's schedule (now).
+    fn restart(&mut self) {
+        self.next = monotonic_ns();
+    }
+
+    /// Waits for the current period to start (paced) and records the wake-up's lateness.
+    fn wait(&mut self) {
+        if self.period_ns > 0 {
+            mpo_link::realtime::sleep_until(self.next);
+            let woke = monotonic_ns();
+            self.lateness
+                .saturating_record(woke.saturating_sub(self.next).max(1));
+        }
+    }
+
+    /// After a step: the next period, and an overrun if this step ended after it started.
+    fn after_step(&mut self) {
+        if self.period_ns == 0 {
+            return;
+        }
+        self.next += self.period_ns;
+        let now = monotonic_ns();
+        if now > self.next {
+            self.overruns += 1;
+            // More than a whole period behind: start a fresh schedule rather than catching up
+            // with a burst of steps.
+            if now - self.next > self.period_ns {
+                self.next = now;
+            }
+        }
+    }
+}
+
+/// The policy, in this process or through the controller, with its latency recorded.
+struct Actuator<'a> {
+    policy: &'a dyn Policy,
+    link: Option<Link>,
+    latency: Histogram<u64>,
+    misses_in_process: u64,
+}
+
+impl Actuator<'_> {
+    /// The action for `obs` (the safe action, zero, when the policy's is not finite or the
+    /// controller missed its deadline).
+    fn act(&mut self, episode: u32, step: u32, obs: &[f32], act: &mut [f32]) {
+        match self.link.as_mut() {
+            Some(l) => {
+                l.set_episode_step(episode as u64, step);
+                if let Some(a) = l.act(obs, act) {
+                    self.latency.saturating_record((a.t[3] - a.t[0]).max(1));
+                }
+            }
+            None => {
+                let t0 = monotonic_ns();
+                self.policy.mean_action(obs, act);
+                self.latency.saturating_record((monotonic_ns() - t0).max(1));
+                if !act.iter().all(|a| a.is_finite()) {
+                    // The link rejects non-finite actions; in-process does the same.
+                    act.fill(0.0);
+                    self.misses_in_process += 1;
+                }
+            }
+        }
+    }
+}
+
+/// Starts the controller process the request asks for and hands it the policy.
+fn start_link(policy: &dyn Policy, req: &RunRequest<'_>) -> Result<Option<Link>, RunError> {
+    let Some(opts) = &req.link else {
+        return Ok(None);
     };
+    let mut link = Link::start(&req.target, policy.obs_dim(), policy.act_dim(), opts)?;
+    eprintln!(
+        "acting through controller process {} (run id {}, {} wait{}, deadline {} us)",
+        link.controller_pid()
+            .map(|p| format!("pid {p}"))
+            .unwrap_or_else(|| "attached".into()),
+        link.run_id(),
+        opts.wait.name(),
+        if opts.spin.is_zero() {
+            String::new()
+        } else {
+            format!(" after a {} us spin", opts.spin.as_micros())
+        },
+        opts.deadline.as_micros()
+    );
+    policy.push(&mut link)?;
+    Ok(Some(link))
+}
+
+/// What the episodes came to.
+#[derive(Default)]
+struct Outcome {
+    returns: Vec<f64>,
+    steps: u64,
+    stepping: Duration,
+    partial_return: Option<f64>,
+    interrupted: bool,
+    cycle: Option<Histogram<u64>>,
+}
+
+/// Runs `policy` (the checkpoint's online policy) on the task as `req` says.
+pub fn run(policy: &dyn Policy, req: RunRequest<'_>) -> Result<RunSummary, RunError> {
+    let deadline = req.link.as_ref().map(|o| o.deadline);
+    let link = start_link(policy, &req)?;
     if let Some(p) = req.realtime {
         mpo_link::realtime::enter(p).map_err(RunError::Realtime)?;
     }
     mpo_link::realtime::tight_timer_slack();
     let load_average = load_average();
-
-    let period_ns = match req.pacing {
-        Pacing::Lockstep => 0,
-        Pacing::Paced(hz) => (1e9 / hz).round().max(1.0) as u64,
+    let mut actuator = Actuator {
+        policy,
+        link,
+        latency: histogram(),
+        misses_in_process: 0,
     };
-    let mut latency = histogram();
-    let mut lateness = histogram();
-    let mut cycle = histogram();
-    let pb = if req.progress {
-        let len = match req.limit {
-            Limit::Steps(n) => n,
-            Limit::Seconds(s) => (s * 10.0).ceil() as u64,
-        };
-        ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr())
-    } else {
-        ProgressBar::hidden()
+    let mut pacer = Pacer::new(req.pacing);
+    let len = match req.limit {
+        Limit::Steps(n) => n,
+        Limit::Seconds(s) => (s * 10.0).ceil() as u64,
     };
-    pb.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {msg}")
-            .expect("template")
-            .progress_chars("=> "),
-    );
-    let log = |pb: &ProgressBar, msg: &str| {
-        if pb.is_hidden() {
-            eprintln!("{msg}");
-        } else {
-            pb.println(msg);
-        }
-    };
-
-    let mut obs64 = [0f64; OBS];
-    let mut obs = [0f32; OBS];
-    let mut act = [0f32; ACT];
-    let mut act64 = [0f64; ACT];
-    let mut returns = Vec::new();
-    let mut steps = 0u64;
-    let mut overruns = 0u64;
-    let mut misses_in_process = 0u64;
-    let mut stepping = Duration::ZERO;
-    let mut interrupted = false;
-    let mut partial_return = None;
-    let budget = match req.limit {
-        Limit::Seconds(s) => Some(Duration::from_secs_f64(s)),
-        Limit::Steps(_) => None,
-    };
-    let done = |steps: u64, stepping: Duration| match req.limit {
-        Limit::Steps(n) => steps >= n,
-        Limit::Seconds(_) => stepping >= budget.expect("seconds limit"),
-    };
-
-    'episodes: for episode in 0u32.. {
-        // Built outside the paced loop: loading the model takes milliseconds.
-        let mut env = sim_bridge::make(&req.task, eval_env_seed(req.seed, episode))?;
-        env.reset(&mut obs64);
-        let mut ret = 0.0;
-        let mut episode_step = 0u32;
-        let started = Instant::now();
-        let mut next = monotonic_ns();
-        loop {
-            if req.interrupt.load(Ordering::Relaxed) {
-                interrupted = true;
-                partial_return = Some(ret);
-                stepping += started.elapsed();
-                break 'episodes;
-            }
-            if period_ns > 0 {
-                mpo_link::realtime::sleep_until(next);
-                let woke = monotonic_ns();
-                lateness.saturating_record(woke.saturating_sub(next).max(1));
-            }
-            let work0 = monotonic_ns();
-            for (o, x) in obs.iter_mut().zip(&obs64) {
-                *o = *x as f32;
-            }
-            match link.as_mut() {
-                Some(l) => {
-                    l.set_episode_step(episode as u64, episode_step);
-                    if let Some(a) = l.act(&obs, &mut act) {
-                        latency.saturating_record((a.t[3] - a.t[0]).max(1));
-                    }
-                }
-                None => {
-                    let t0 = monotonic_ns();
-                    actor.mean_action(&obs, &mut act);
-                    latency.saturating_record((monotonic_ns() - t0).max(1));
-                    if !act.iter().all(|a| a.is_finite()) {
-                        // The link rejects non-finite actions; in-process does the same.
-                        act = [0.0; ACT];
-                        misses_in_process += 1;
-                    }
-                }
-            }
-            for (o, a) in act64.iter_mut().zip(&act) {
-                *o = a.clamp(-1.0, 1.0) as f64;
-            }
-            let step = env.try_step(&act64, &mut obs64)?;
-            cycle.saturating_record((monotonic_ns() - work0).max(1));
-            ret += step.reward;
-            steps += 1;
-            episode_step += 1;
-            if period_ns > 0 {
-                next += period_ns;
-                let now = monotonic_ns();
-                if now > next {
-                    overruns += 1;
-                    // More than a whole period behind: start a fresh schedule rather than
-                    // catching up with a burst of steps.
-                    if now - next > period_ns {
-                        next = now;
-                    }
-                }
-            }
-            if steps & 255 == 0 {
-                let elapsed = stepping + started.elapsed();
-                if let Some(l) = link.as_mut() {
-                    for e in l.take_events() {
-                        log(&pb, &e);
-                    }
-                }
-                if !pb.is_hidden() {
-                    pb.set_position(match req.limit {
-                        Limit::Steps(_) => steps,
-                        Limit::Seconds(_) => (elapsed.as_secs_f64() * 10.0) as u64,
-                    });
-                    let misses = link.as_ref().map_or(0, |l| l.report().misses);
-                    pb.set_message(format!(
-                        "{steps} steps, {} episodes, {misses} misses",
-                        returns.len()
-                    ));
-                }
-            }
-            if done(steps, stepping + started.elapsed()) {
-                stepping += started.elapsed();
-                if !step.last {
-                    partial_return = Some(ret);
-                } else {
-                    returns.push(ret);
-                }
-                break 'episodes;
-            }
-            if step.last {
-                returns.push(ret);
-                break;
-            }
-        }
-        stepping += started.elapsed();
-    }
-    pb.finish_and_clear();
-
-    let report = link.take().map(|l| {
-        let mut l = l;
+    let progress = Progress::new(req.progress, len, "{elapsed_precise} [{bar:30}] {msg}");
+    let o = episodes(&req, &mut actuator, &mut pacer, &progress)?;
+    progress.finish();
+    let report = actuator.link.take().map(|mut l| {
         for e in l.drain_events() {
             eprintln!("{e}");
         }
         l.finish()
     });
-    let (return_mean, return_std) = if returns.is_empty() {
-        (0.0, 0.0)
-    } else {
-        mean_std(&returns)
+    let (return_mean, return_std) = match o.returns.is_empty() {
+        true => (0.0, 0.0),
+        false => mean_std(&o.returns),
     };
     Ok(RunSummary {
-        task: req.task,
+        task: req.task.name().into(),
         checkpoint_env_steps: req.checkpoint_env_steps,
         seed: req.seed,
-        controller: if report.is_some() {
-            ControllerKind::Ipc
-        } else {
-            ControllerKind::InProcess
+        controller: match report.is_some() {
+            true => ControllerKind::Ipc,
+            false => ControllerKind::InProcess,
         },
         mode: match req.pacing {
             Pacing::Lockstep => "lockstep".into(),
@@ -398,22 +355,128 @@ pub fn run<
             Pacing::Lockstep => None,
             Pacing::Paced(hz) => Some(hz),
         },
-        steps,
-        returns,
+        steps: o.steps,
+        returns: o.returns,
         return_mean,
         return_std,
-        partial_return,
-        wall_s: stepping.as_secs_f64(),
-        misses: report.as_ref().map_or(misses_in_process, |r| r.misses),
+        partial_return: o.partial_return,
+        wall_s: o.stepping.as_secs_f64(),
+        misses: report
+            .as_ref()
+            .map_or(actuator.misses_in_process, |r| r.misses),
         deadline_us: deadline.map(|d| d.as_secs_f64() * 1e6),
-        latency_us: Quantiles::of(&latency),
-        cycle_us: Quantiles::of(&cycle),
-        lateness_us: (period_ns > 0).then(|| Quantiles::of(&lateness)),
-        overruns,
+        latency_us: Quantiles::of(&actuator.latency),
+        cycle_us: Quantiles::of(o.cycle.as_ref().expect("recorded")),
+        lateness_us: (pacer.period_ns > 0).then(|| Quantiles::of(&pacer.lateness)),
+        overruns: pacer.overruns,
         load_average,
-        interrupted,
+        interrupted: o.interrupted,
         link: report,
     })
+}
+
+/// Steps episodes until the limit or an interrupt: episode `i` on a fresh environment of
+/// evaluation seed `i`, each built outside the paced loop (loading a model takes
+/// milliseconds).
+fn episodes(
+    req: &RunRequest<'_>,
+    actuator: &mut Actuator<'_>,
+    pacer: &mut Pacer,
+    progress: &Progress,
+) -> Result<Outcome, RunError> {
+    let spec = req.task.spec();
+    let (mut obs64, mut obs) = (vec![0f64; spec.obs_dim], vec![0f32; spec.obs_dim]);
+    let (mut act, mut act64) = (vec![0f32; spec.act_dim], vec![0f64; spec.act_dim]);
+    let mut cycle = histogram();
+    let mut o = Outcome::default();
+    let budget = match req.limit {
+        Limit::Seconds(s) => Some(Duration::from_secs_f64(s)),
+        Limit::Steps(_) => None,
+    };
+    let done = |steps: u64, stepping: Duration| match (req.limit, budget) {
+        (Limit::Steps(n), _) => steps >= n,
+        (Limit::Seconds(_), b) => stepping >= b.expect("seconds limit"),
+    };
+    'episodes: for episode in 0u32.. {
+        let mut env = req.task.make(eval_env_seed(req.seed, episode))?;
+        env.reset(&mut obs64);
+        let (mut ret, mut episode_step) = (0.0, 0u32);
+        let started = Instant::now();
+        pacer.restart();
+        loop {
+            if req.interrupt.load(Ordering::Relaxed) {
+                (o.interrupted, o.partial_return) = (true, Some(ret));
+                o.stepping += started.elapsed();
+                break 'episodes;
+            }
+            pacer.wait();
+            let work0 = monotonic_ns();
+            for (x, y) in obs.iter_mut().zip(&obs64) {
+                *x = *y as f32;
+            }
+            actuator.act(episode, episode_step, &obs, &mut act);
+            for (x, a) in act64.iter_mut().zip(&act) {
+                *x = a.clamp(-1.0, 1.0) as f64;
+            }
+            let step = env.try_step(&act64, &mut obs64)?;
+            cycle.saturating_record((monotonic_ns() - work0).max(1));
+            ret += step.reward;
+            o.steps += 1;
+            episode_step += 1;
+            pacer.after_step();
+            if o.steps & 255 == 0 {
+                show(
+                    req,
+                    actuator,
+                    progress,
+                    o.steps,
+                    o.stepping + started.elapsed(),
+                    o.returns.len(),
+                );
+            }
+            if done(o.steps, o.stepping + started.elapsed()) {
+                o.stepping += started.elapsed();
+                match step.last {
+                    true => o.returns.push(ret),
+                    false => o.partial_return = Some(ret),
+                }
+                break 'episodes;
+            }
+            if step.last {
+                o.returns.push(ret);
+                break;
+            }
+        }
+        o.stepping += started.elapsed();
+    }
+    o.cycle = Some(cycle);
+    Ok(o)
+}
+
+/// The progress line and the controller's events, every 256 steps.
+fn show(
+    req: &RunRequest<'_>,
+    actuator: &mut Actuator<'_>,
+    progress: &Progress,
+    steps: u64,
+    elapsed: Duration,
+    episodes: usize,
+) {
+    if let Some(l) = actuator.link.as_mut() {
+        for e in l.take_events() {
+            progress.log(&e);
+        }
+    }
+    if !progress.is_hidden() {
+        progress.set_position(match req.limit {
+            Limit::Steps(_) => steps,
+            Limit::Seconds(_) => (elapsed.as_secs_f64() * 10.0) as u64,
+        });
+        let misses = actuator.link.as_ref().map_or(0, |l| l.report().misses);
+        progress.set_message(format!(
+            "{steps} steps, {episodes} episodes, {misses} misses"
+        ));
+    }
 }
 
 /// The human-readable table of a run (printed on stderr).

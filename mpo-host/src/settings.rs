@@ -12,15 +12,19 @@ use mpo_core::config::MpoConfig;
 use mpo_core::replay::MAX_NSTEP;
 use serde::{Deserialize, Serialize};
 
-use crate::tasks::Sizes;
+use crate::sizes::Sizes;
 
 /// Everything that determines a run (with the task table's sizes, everything that
 /// determines its bits).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Settings {
-    /// Control Suite task, e.g. `cartpole-balance`.
+    /// The task's name: a built-in task (`mpo tasks`), e.g. `cartpole-balance`, or the name of
+    /// the task file below.
     pub task: String,
+    /// A task file (absolute path) to train on instead of a built-in task; `task` is its name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub task_file: Option<std::path::PathBuf>,
     /// Network variant of the task's table row (`default`, or `tiny` for fast tests).
     pub net: String,
     /// Seed of the networks, the collector and the training environment.
@@ -387,16 +391,26 @@ impl Settings {
     }
 
     /// Range checks beyond the types (episode-aligned schedule, learner validation).
-    pub fn validate(&self, episode_steps: u64, sizes: &Sizes) -> Result<(), SettingsError> {
+    /// `episode_steps` is the task's episode length and `fixed` true when every episode has
+    /// it (no early termination): then `steps` and `eval_interval` must be multiples of it, so
+    /// that evaluations and checkpoints fall on episode ends; otherwise they happen at the
+    /// first episode end at or after each multiple.
+    pub fn validate(
+        &self,
+        episode_steps: u64,
+        fixed: bool,
+        sizes: &Sizes,
+    ) -> Result<(), SettingsError> {
         let bad = |m: String| Err(SettingsError::Invalid(m));
         if let Some(n) = &self.network
             && n != sizes
         {
             return bad(format!(
-                "[network] is {n:?} but the task table's `{}`/`{}` row is {sizes:?}: sizes are the learner's type and come from the table (choose another `net`)",
+                "[network] is {n:?} but the `{}`/`{}` row's are {sizes:?}: sizes are the learner's type and come from the row (choose another `net`)",
                 self.task, self.net
             ));
         }
+        let episode_steps = if fixed { episode_steps } else { 1 };
         if self.steps == 0 || !self.steps.is_multiple_of(episode_steps) {
             return bad(format!(
                 "steps = {} must be a positive multiple of the episode length ({episode_steps}): checkpoints are taken at episode boundaries",

@@ -8,14 +8,14 @@ use mpo_core::evaluation::nstep;
 use mpo_core::replay::Transition;
 use mpo_host::commands::defaults;
 use mpo_host::settings::PolicyEvaluation;
-use mpo_host::tasks;
-use mpo_host::train::Trainer;
+use mpo_host::table;
+use mpo_host::trainer::Trainer;
 
 type Tiny = Trainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
 
 /// A trainer of the tiny row with `evaluation` over `n` steps, after 3000 environment steps.
 fn trained(evaluation: PolicyEvaluation, n: u32) -> Box<Tiny> {
-    let row = tasks::row("cartpole-balance", "tiny").unwrap();
+    let row = table::row("cartpole-balance", "tiny").unwrap();
     let mut settings = defaults(row);
     settings.mpo.policy_evaluation = evaluation;
     settings.mpo.n_step = n;

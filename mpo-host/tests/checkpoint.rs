@@ -6,7 +6,7 @@ mod common;
 use common::*;
 
 use mpo_host::checkpoint;
-use mpo_host::train::Trainer;
+use mpo_host::trainer::Trainer;
 use safetensors::SafeTensors;
 
 /// The `cartpole-balance`/`tiny` row's types.

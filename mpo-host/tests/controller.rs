@@ -510,7 +510,7 @@ fn link_flags_need_the_ipc_controller() {
                 "--net",
                 "huge",
             ],
-            "net `huge`",
+            "no row `huge`",
         ),
         (&["controller", "--run", "bad/name"], "bad/name"),
     ] {

@@ -80,7 +80,7 @@ fn fingerprint(pin: &Pin, out: &Path) -> String {
 fn every_row_keeps_its_pinned_params_sha256() {
     let text = std::fs::read_to_string(pin_file()).unwrap();
     let mut file: PinFile = toml::from_str(&text).unwrap();
-    let rows: Vec<(String, String)> = mpo_host::tasks::ROWS
+    let rows: Vec<(String, String)> = mpo_host::table::rows()
         .iter()
         .map(|r| (r.task.to_string(), r.net.to_string()))
         .collect();

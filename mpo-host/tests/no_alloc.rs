@@ -6,8 +6,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use mpo_host::commands::defaults;
-use mpo_host::tasks;
-use mpo_host::train::Trainer;
+use mpo_host::table;
+use mpo_host::trainer::Trainer;
 
 struct Counting;
 static ALLOCS: AtomicU64 = AtomicU64::new(0);
@@ -35,7 +35,7 @@ type Tiny = Trainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
 #[test]
 fn collect_and_learn_allocate_nothing() {
     use mpo_host::settings::PolicyEvaluation;
-    let row = tasks::row("cartpole-balance", "tiny").unwrap();
+    let row = table::row("cartpole-balance", "tiny").unwrap();
     // Every policy evaluation, on two learner threads (the pool's workers count too: the
     // counter is global, and this binary runs no other test).
     for (evaluation, n) in [

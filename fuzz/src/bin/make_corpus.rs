@@ -16,7 +16,7 @@ use mpo_core::rng::Rng;
 use mpo_fuzz::{actions_csv, checkpoint as ck, config, frames, link};
 use mpo_host::checkpoint;
 use mpo_host::commands;
-use mpo_host::train::Trainer;
+use mpo_host::trainer::Trainer;
 use mpo_link::controller::{ControllerStats, respond};
 use mpo_link::messages::{ActMsg, CHECKSUM_SEED, ObsMsg, ParamChunk, checksum};
 
@@ -36,7 +36,7 @@ fn checkpoint_files(dir: &Path) -> [Vec<u8>; 5] {
 
 /// A checkpoint of a few warm-up steps through `checkpoint::save` (a small replay).
 fn small_checkpoint(tmp: &Path) -> [Vec<u8>; 5] {
-    let row = mpo_host::tasks::row("cartpole-balance", "tiny").unwrap();
+    let row = mpo_host::table::row("cartpole-balance", "tiny").unwrap();
     let settings = commands::defaults(row);
     let mut t = Tiny::new(&settings, None, 1).unwrap();
     t.collect(8).unwrap();

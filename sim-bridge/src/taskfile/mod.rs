@@ -339,6 +339,12 @@ impl TaskDef {
         &self.spec
     }
 
+    /// True when an episode may end before its time limit: the file has a `terminate`
+    /// condition, or another program steps the plant (it decides).
+    pub fn can_terminate(&self) -> bool {
+        self.toml.terminate.is_some() || self.is_external()
+    }
+
     /// True for `plant = "external"` (another program steps it).
     pub fn is_external(&self) -> bool {
         self.toml.plant == PlantKind::External

@@ -1,0 +1,40 @@
+//! `mpo controller`: the policy in its own process.
+
+use super::Error;
+use crate::cli::ControllerArgs;
+use crate::rows;
+
+/// `mpo controller`: serves the run until SIGINT/SIGTERM; returns its counters.
+pub fn controller(args: &ControllerArgs) -> Result<mpo_link::controller::ControllerStats, Error> {
+    let run = mpo_link::RunId::parse(&args.run).map_err(|e| Error::Controller(e.to_string()))?;
+    let wait = mpo_link::WaitMode::parse(&args.wait)
+        .ok_or_else(|| Error::Controller(format!("unknown wait mode {:?}", args.wait)))?;
+    let task = match &args.task_file {
+        Some(f) => sim_bridge::TaskDef::from_file(f).map_err(rows::RowError::from)?,
+        None => rows::builtin(&args.task)?,
+    };
+    let row = rows::row(&task, &args.net)?;
+    let instance = crate::registry::find(&row.sizes)?;
+    if let Some(p) = args.realtime {
+        if wait == mpo_link::WaitMode::BusyPoll {
+            return Err(Error::Controller(
+                "--realtime with --wait busy-poll would starve the core".into(),
+            ));
+        }
+        mpo_link::realtime::enter(p).map_err(Error::Controller)?;
+    }
+    mpo_link::controller::install_stop_handler();
+    let opts = mpo_link::controller::ControllerOptions {
+        run,
+        wait,
+        seed: 0,
+        init_std: row.mpo.init_std as f32,
+    };
+    let mut ready = || {
+        use std::io::Write;
+        let mut out = std::io::stdout();
+        let _ = writeln!(out, "ready");
+        let _ = out.flush();
+    };
+    (instance.serve)(&opts, &mut ready).map_err(|e| Error::Controller(e.to_string()))
+}

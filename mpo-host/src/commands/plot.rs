@@ -1,0 +1,239 @@
+//! `mpo plot`: learning curves of run directories, read from their metrics files.
+
+use super::Error;
+use crate::cli::PlotArgs;
+use crate::settings;
+
+fn str_value(t: &toml::Table, k: &str) -> Option<String> {
+    t.get(k).and_then(|v| v.as_str()).map(str::to_string)
+}
+
+/// `mpo plot`: one curve per run directory, labelled with the directory's name; with
+/// `--by-task`, one panel per task.
+pub fn plot(args: &PlotArgs) -> Result<(), Error> {
+    let mut runs = Vec::new();
+    for dir in &args.runs {
+        runs.push(read_run_curve(dir)?);
+    }
+    if args.by_task {
+        return plot_by_task(args, runs);
+    }
+    let title = args.title.clone().unwrap_or_else(|| {
+        format!(
+            "MPO {}",
+            runs.iter().find_map(|r| r.2.clone()).unwrap_or_default()
+        )
+    });
+    let task = runs.iter().find_map(|r| r.2.clone());
+    let series: Vec<_> = runs
+        .into_iter()
+        .map(|(label, pts, _)| (label, pts))
+        .collect();
+    let what = task.as_deref().unwrap_or("runs");
+    let (mean, line) = args
+        .mean
+        .then(|| mean_of_runs(what, &series))
+        .transpose()?
+        .unzip();
+    crate::plot::write_curves(&args.out, &title, &series, mean).map_err(Error::Plot)?;
+    // Only after the image is written, so a refused or failed command prints no figure.
+    line.iter().for_each(|l| println!("{l}"));
+    Ok(())
+}
+
+/// `--mean`: the mean curve over `series` ([`crate::plot::mean_over_runs`]) with its legend
+/// label, and the line to print once the image is written: its last point and each run's
+/// return there (`what` names the runs).
+fn mean_of_runs(
+    what: &str,
+    series: &[crate::plot::Series],
+) -> Result<(crate::plot::Series, String), Error> {
+    let pts = crate::plot::mean_over_runs(series).ok_or_else(|| {
+        Error::Plot(format!(
+            "--mean: the {what} runs share no evaluation step (it averages at the steps every run has)"
+        ))
+    })?;
+    let &(x, m, sd) = pts.last().expect("mean_over_runs returns points or None");
+    let each: Vec<String> = series
+        .iter()
+        .filter_map(|(label, p)| {
+            p.iter()
+                .find(|q| q.0 == x)
+                .map(|q| format!("{label} {:.1}", q.1))
+        })
+        .collect();
+    let runs = match series.len() {
+        1 => "1 run".to_string(),
+        n => format!("{n} runs"),
+    };
+    let line = format!(
+        "{what}: mean of {runs} at {x} steps: {m:.1} +- {sd:.1} ({})",
+        each.join(", ")
+    );
+    let label = format!("mean of {} (+-1 std over runs)", series.len());
+    Ok(((label, pts), line))
+}
+
+/// `mpo plot --by-task`: the runs grouped by their task into panels, with the `--target` lines.
+fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
+    let mut panels: Vec<crate::plot::Panel> = Vec::new();
+    for ((label, pts, task), dir) in runs.into_iter().zip(&args.runs) {
+        let task = task.ok_or_else(|| {
+            Error::Plot(format!(
+                "{}: no `task` in config.toml (--by-task groups runs by it)",
+                dir.display()
+            ))
+        })?;
+        match panels.iter_mut().find(|p| p.title == task) {
+            Some(p) => p.series.push((label, pts)),
+            None => panels.push(crate::plot::Panel {
+                title: task,
+                series: vec![(label, pts)],
+                target: None,
+                budget: None,
+                mean: None,
+            }),
+        }
+    }
+    for t in &args.target {
+        let (panel, value) =
+            panel_setting(&mut panels, "--target", "RETURN", "walker-walk=900", t)?;
+        panel.target = Some(value);
+    }
+    for t in &args.budget {
+        let (panel, value) =
+            panel_setting(&mut panels, "--budget", "STEPS", "walker-run=1000000", t)?;
+        if !(1.0..=1e12).contains(&value) {
+            return Err(Error::Plot(format!(
+                "--budget {t}: STEPS must be from 1 to 10^12"
+            )));
+        }
+        panel.budget = Some(value as u64);
+    }
+    let mut lines = Vec::new();
+    if args.mean {
+        for p in &mut panels {
+            let (mean, line) = mean_of_runs(&p.title, &p.series)?;
+            p.mean = Some(mean);
+            lines.push(line);
+        }
+    }
+    let title = args.title.clone().unwrap_or_else(|| "MPO".to_string());
+    crate::plot::write_panels(&args.out, &title, &panels).map_err(Error::Plot)?;
+    // Only after the image is written, so a refused or failed command prints no figure.
+    lines.iter().for_each(|l| println!("{l}"));
+    Ok(())
+}
+
+/// `TASK=VALUE` of `flag`: the panel of TASK and the value, or an error naming the flag.
+fn panel_setting<'a>(
+    panels: &'a mut [crate::plot::Panel],
+    flag: &str,
+    what: &str,
+    example: &str,
+    arg: &str,
+) -> Result<(&'a mut crate::plot::Panel, f64), Error> {
+    let bad = || {
+        Error::Plot(format!(
+            "{flag} {arg}: expected TASK={what}, e.g. {example}"
+        ))
+    };
+    let (task, value) = arg.split_once('=').ok_or_else(bad)?;
+    let value: f64 = value.trim().parse().map_err(|_| bad())?;
+    let panel = panels
+        .iter_mut()
+        .find(|p| p.title == task.trim())
+        .ok_or_else(|| {
+            Error::Plot(format!(
+                "{flag} {arg}: none of the runs given is of task {}",
+                task.trim()
+            ))
+        })?;
+    Ok((panel, value))
+}
+
+/// One run's curve: its label (the directory's name), `(env_steps, mean, std)` per evaluation
+/// from `metrics.jsonl` (or `metrics.csv` without it), and its task from `config.toml` when there is one.
+type RunCurve = (String, Vec<(u64, f64, f64)>, Option<String>);
+
+fn read_run_curve(dir: &std::path::Path) -> Result<RunCurve, Error> {
+    let jsonl = dir.join("metrics.jsonl");
+    let csv = dir.join("metrics.csv");
+    let pts = if jsonl.exists() || !csv.exists() {
+        jsonl_points(&jsonl)?
+    } else {
+        csv_points(&csv)?
+    };
+    let task = settings::read_table(&dir.join("config.toml"))
+        .ok()
+        .and_then(|t| str_value(&t, "task"));
+    let label = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| dir.display().to_string());
+    Ok((label, pts, task))
+}
+
+/// `(env_steps, mean, std)` per line of a `metrics.jsonl`.
+fn jsonl_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
+    let mut pts = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let v: serde_json::Value = serde_json::from_str(line)
+            .map_err(|e| Error::Plot(format!("{} line {}: {e}", path.display(), i + 1)))?;
+        let get = |k: &str| {
+            v.get(k).and_then(|x| x.as_f64()).ok_or_else(|| {
+                Error::Plot(format!(
+                    "{} line {}: no number `{k}`",
+                    path.display(),
+                    i + 1
+                ))
+            })
+        };
+        pts.push((
+            get("env_steps")? as u64,
+            get("eval_return_mean")?,
+            get("eval_return_std")?,
+        ));
+    }
+    Ok(pts)
+}
+
+/// The same from a `metrics.csv` (for run directories kept without their JSON lines): the
+/// columns found by name in the header, as `metrics::write_all` writes them (no quoting).
+fn csv_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let col = |k: &str| {
+        header.iter().position(|h| *h == k).ok_or_else(|| {
+            Error::Plot(format!("{}: no column `{k}` in the header", path.display()))
+        })
+    };
+    let cols = [
+        col("env_steps")?,
+        col("eval_return_mean")?,
+        col("eval_return_std")?,
+    ];
+    let mut pts = Vec::new();
+    for (i, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        let mut v = [0.0; 3];
+        for (x, &c) in v.iter_mut().zip(&cols) {
+            *x = cells
+                .get(c)
+                .and_then(|s| s.trim().parse().ok())
+                .ok_or_else(|| {
+                    Error::Plot(format!(
+                        "{} line {}: column {c} is not a number",
+                        path.display(),
+                        i + 2
+                    ))
+                })?;
+        }
+        pts.push((v[0] as u64, v[1], v[2]));
+    }
+    Ok(pts)
+}
