@@ -217,6 +217,7 @@ enum Plan {
 }
 
 #[test]
+#[ignore = "long: scripts/test --long"]
 fn sigkill_at_random_moments_then_resume_matches() {
     let t_start = Instant::now();
     let seed = std::env::var("MPO_CRASH_SEED")

@@ -78,9 +78,10 @@ fn device_run_equals_the_in_process_run_bit_for_bit() {
     assert_eq!(there["params_sha256"], here["params_sha256"]);
     assert_eq!(there["updates"], here["updates"]);
     assert_eq!(there["eval_return_mean"], here["eval_return_mean"]);
+    // A loaded machine may miss the 50 ms reply timeout and ask again (counted as retries):
+    // the bits must not care. A clean link never damages a frame.
     let dev = &there["device"];
-    assert_eq!(dev["retries"], 0, "{dev}");
-    assert_eq!(dev["rejected_by_host"], 0);
+    assert_eq!(dev["rejected_by_host"], 0, "{dev}");
     assert_eq!(dev["rejected_by_device"], 0);
     // Every metrics row agrees but the wall clock and the learner statistics (the device does
     // not send them).
@@ -102,6 +103,7 @@ fn device_run_equals_the_in_process_run_bit_for_bit() {
 }
 
 #[test]
+#[ignore = "long: scripts/test --long"]
 fn damaged_and_truncated_frames_both_ways_are_counted_and_recovered_from() {
     let d = scratch("device-damage");
     let clean = mcu(&d.join("clean"), 2000, false, &[]);

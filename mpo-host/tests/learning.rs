@@ -8,6 +8,7 @@ mod common;
 use common::*;
 
 #[test]
+#[ignore = "long: scripts/test --long"]
 fn short_cartpole_run_beats_the_untrained_policy() {
     let d = scratch("learning");
     let run = d.join("run");

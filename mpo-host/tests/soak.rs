@@ -90,6 +90,7 @@ fn pid_alive(pid: i32) -> bool {
 }
 
 #[test]
+#[ignore = "long: scripts/test --long"]
 fn controller_killed_every_two_seconds_for_fourteen_seconds() {
     let t_test = Instant::now();
     let dir = scratch("soak").join("run");
