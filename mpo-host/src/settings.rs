@@ -374,8 +374,8 @@ impl Settings {
         let mut resolved = self.clone();
         resolved.network = Some(*sizes);
         format!(
-            "# Resolved configuration of this run (task table defaults, --config, flags).\n\
-             # `mpo train --config config.toml --out NEW` repeats it; [network] is fixed by the task table.\n{}",
+            "# Resolved configuration of this run (the row's defaults, --config, flags).\n\
+             # `mpo train --config config.toml --out NEW` repeats it; [network] is fixed by the row (the learner's type).\n{}",
             toml::to_string(&resolved).expect("settings serialise")
         )
     }
