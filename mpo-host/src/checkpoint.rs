@@ -478,14 +478,62 @@ pub fn save<
     replay: &Replay<CAP, OBS, ACT>,
     meta: &Meta,
 ) -> Result<(), CheckpointError> {
-    let s = &meta.sizes;
+    let contents: [Vec<u8>; 4] = [
+        serde_json::to_vec_pretty(meta).expect("meta serialises"),
+        network_tensors(learner, &meta.sizes).serialize(&meta.settings),
+        optimizer_tensors(learner, &meta.sizes).serialize(&meta.settings),
+        replay_tensors(replay).serialize(&meta.settings),
+    ];
+    settle(run_dir)?;
+    write_swapped(run_dir, &contents)
+}
+
+/// The online and target networks.
+fn network_tensors<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+>(
+    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    s: &Sizes,
+) -> Tensors {
     let (al, cl) = (actor_layout(s), critic_layout(s));
     let mut params = Tensors::default();
     params.params("actor", &learner.live.actor, &al);
     params.params("critic", &learner.live.critic, &cl);
     params.params("target_actor", &learner.target_actor, &al);
     params.params("target_critic", &learner.target_critic, &cl);
+    params
+}
 
+/// Adam's moments and step counters, and the dual variables.
+fn optimizer_tensors<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    const AH1: usize,
+    const AH2: usize,
+    const QH1: usize,
+    const QH2: usize,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+>(
+    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    s: &Sizes,
+) -> Tensors {
+    let (al, cl) = (actor_layout(s), critic_layout(s));
     let l = &learner.live;
     let mut opt = Tensors::default();
     opt.params("actor_m", &l.actor_m, &al);
@@ -514,25 +562,24 @@ pub fn save<
         vec![4, ACT],
         d.moments.as_flattened(),
     );
+    opt
+}
 
+/// The replay's stored slots (a ring that is not full fills slots `0..len`).
+fn replay_tensors<const CAP: usize, const OBS: usize, const ACT: usize>(
+    replay: &Replay<CAP, OBS, ACT>,
+) -> Tensors {
     let raw = replay.raw();
-    let n = raw.counters.len as usize; // a ring that is not full fills slots 0..len
+    let n = raw.counters.len as usize;
     let mut rep = Tensors::default();
-    rep.f32s(
-        "obs".into(),
-        vec![n, OBS],
-        &raw.obs.as_flattened()[..n * OBS],
-    );
+    let (obs, next_obs) = (raw.obs.as_flattened(), raw.next_obs.as_flattened());
+    rep.f32s("obs".into(), vec![n, OBS], &obs[..n * OBS]);
     rep.f32s(
         "action".into(),
         vec![n, ACT],
         &raw.action.as_flattened()[..n * ACT],
     );
-    rep.f32s(
-        "next_obs".into(),
-        vec![n, OBS],
-        &raw.next_obs.as_flattened()[..n * OBS],
-    );
+    rep.f32s("next_obs".into(), vec![n, OBS], &next_obs[..n * OBS]);
     rep.f32s("reward".into(), vec![n], &raw.reward[..n]);
     rep.f32s("discount".into(), vec![n], &raw.discount[..n]);
     rep.f32s(
@@ -541,14 +588,14 @@ pub fn save<
         &raw.behaviour_log_prob[..n],
     );
     rep.u64s("episode".into(), &raw.episode[..n]);
+    rep
+}
 
-    let contents: [Vec<u8>; 4] = [
-        serde_json::to_vec_pretty(meta).expect("meta serialises"),
-        params.serialize(&meta.settings),
-        opt.serialize(&meta.settings),
-        rep.serialize(&meta.settings),
-    ];
-    settle(run_dir)?;
+/// Writes the files of [`FILES`] into `run_dir/checkpoint.tmp/`, each fsynced, then
+/// SHA256SUMS (whose presence marks the write complete), then the directory; only then swaps
+/// it in for `checkpoint/` (keeping the previous one as `checkpoint.old/` until the swap is
+/// durable). The [`PAUSE_ENV`] test hook sleeps between the steps.
+fn write_swapped(run_dir: &Path, contents: &[Vec<u8>; 4]) -> Result<(), CheckpointError> {
     let pause = test_pause();
     let pause = || {
         if let Some(d) = pause {
@@ -560,11 +607,9 @@ pub fn save<
         fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
     }
     fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    // The files, each fsynced, then SHA256SUMS (whose presence marks the write complete),
-    // then the directory: only then may the swap make it the live checkpoint.
     let written = (|| {
         let mut sums = String::new();
-        for (name, bytes) in FILES.iter().zip(&contents) {
+        for (name, bytes) in FILES.iter().zip(contents) {
             pause();
             let p = tmp.join(name);
             crate::durable::write_synced(&p, bytes).map_err(io(&p))?;
@@ -679,6 +724,41 @@ pub fn verify(
     mut read: impl FnMut(&str) -> std::io::Result<Vec<u8>>,
 ) -> Result<Verified, CheckpointError> {
     let dir = dir.to_path_buf();
+    let expected = read_sums(&dir, &mut read)?;
+    let mut files = HashMap::new();
+    for name in FILES {
+        let path = dir.join(name);
+        let Some(want) = expected.get(name) else {
+            return Err(CheckpointError::Corrupt {
+                path: dir.join(SUMS),
+                message: format!("no checksum for {name}"),
+            });
+        };
+        let bytes = read(name).map_err(io(&path))?;
+        let got = sha256_hex(&bytes);
+        if &got != want {
+            return Err(CheckpointError::Checksum {
+                path,
+                expected: want.clone(),
+                actual: got,
+            });
+        }
+        files.insert(name, bytes);
+    }
+    let meta = parse_meta(&dir.join("meta.json"), &files["meta.json"])?;
+    Ok(Verified {
+        dir,
+        meta,
+        files,
+        fallback: None,
+    })
+}
+
+/// The checksum of each file from `SHA256SUMS` (`sha256sum`'s format).
+fn read_sums(
+    dir: &Path,
+    read: &mut impl FnMut(&str) -> std::io::Result<Vec<u8>>,
+) -> Result<HashMap<String, String>, CheckpointError> {
     let sums_path = dir.join(SUMS);
     let sums = read(SUMS).map_err(io(&sums_path))?;
     let sums = String::from_utf8(sums).map_err(|_| CheckpointError::Corrupt {
@@ -700,60 +780,35 @@ pub fn verify(
             }
         }
     }
-    let mut files = HashMap::new();
-    for name in FILES {
-        let path = dir.join(name);
-        let Some(want) = expected.get(name) else {
-            return Err(CheckpointError::Corrupt {
-                path: sums_path,
-                message: format!("no checksum for {name}"),
-            });
-        };
-        let bytes = read(name).map_err(io(&path))?;
-        let got = sha256_hex(&bytes);
-        if &got != want {
-            return Err(CheckpointError::Checksum {
-                path,
-                expected: want.clone(),
-                actual: got,
-            });
-        }
-        files.insert(name, bytes);
-    }
-    let meta_path = dir.join("meta.json");
+    Ok(expected)
+}
+
+/// `meta.json`, after checking its format and version (a checkpoint of another version is
+/// refused, not converted).
+fn parse_meta(meta_path: &Path, bytes: &[u8]) -> Result<Meta, CheckpointError> {
+    let corrupt = |message: String| CheckpointError::Corrupt {
+        path: meta_path.to_path_buf(),
+        message,
+    };
     let value: serde_json::Value =
-        serde_json::from_slice(&files["meta.json"]).map_err(|e| CheckpointError::Corrupt {
-            path: meta_path.clone(),
-            message: e.to_string(),
-        })?;
-    if value.get("format").and_then(|v| v.as_str()) != Some(FORMAT)
+        serde_json::from_slice(bytes).map_err(|e| corrupt(e.to_string()))?;
+    let format = value.get("format").and_then(|v| v.as_str());
+    if format != Some(FORMAT)
         || value.get("version").and_then(|v| v.as_u64()) != Some(VERSION as u64)
     {
-        return Err(CheckpointError::Corrupt {
-            path: meta_path,
-            message: format!(
-                "not an {FORMAT} version {VERSION} file (format {}, version {}){}",
-                value.get("format").unwrap_or(&serde_json::Value::Null),
-                value.get("version").unwrap_or(&serde_json::Value::Null),
-                if value.get("format").and_then(|v| v.as_str()) == Some(FORMAT) {
-                    "; checkpoints of another version are not converted: train again, or use \
-                     the release that wrote it"
-                } else {
-                    ""
-                }
-            ),
-        });
+        return Err(corrupt(format!(
+            "not an {FORMAT} version {VERSION} file (format {}, version {}){}",
+            value.get("format").unwrap_or(&serde_json::Value::Null),
+            value.get("version").unwrap_or(&serde_json::Value::Null),
+            if format == Some(FORMAT) {
+                "; checkpoints of another version are not converted: train again, or use \
+                 the release that wrote it"
+            } else {
+                ""
+            }
+        )));
     }
-    let meta: Meta = serde_json::from_value(value).map_err(|e| CheckpointError::Corrupt {
-        path: meta_path,
-        message: e.to_string(),
-    })?;
-    Ok(Verified {
-        dir,
-        meta,
-        files,
-        fallback: None,
-    })
+    serde_json::from_value(value).map_err(|e| corrupt(e.to_string()))
 }
 
 impl Verified {
@@ -828,8 +883,39 @@ impl Verified {
         replay: &mut Replay<CAP, OBS, ACT>,
     ) -> Result<(), CheckpointError> {
         self.load_networks(learner)?;
-        let meta = &self.meta;
-        let s = &meta.sizes;
+        self.load_optimizer(learner)?;
+        learner.updates = self.meta.updates;
+        learner.rng_state =
+            unhex32(&self.meta.learner_rng).ok_or_else(|| self.bad_meta("bad learner_rng"))?;
+        self.load_replay(replay)
+    }
+
+    fn bad_meta(&self, m: &str) -> CheckpointError {
+        CheckpointError::Corrupt {
+            path: self.dir.join("meta.json"),
+            message: m.to_string(),
+        }
+    }
+
+    /// Adam's moments and counters and the dual variables.
+    fn load_optimizer<
+        const OBS: usize,
+        const ACT: usize,
+        const TRI: usize,
+        const AH1: usize,
+        const AH2: usize,
+        const QH1: usize,
+        const QH2: usize,
+        const BC: usize,
+        const C: usize,
+        const L: usize,
+        const M: usize,
+        const N: usize,
+    >(
+        &self,
+        learner: &mut Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    ) -> Result<(), CheckpointError> {
+        let s = &self.meta.sizes;
         let (al, cl) = (actor_layout(s), critic_layout(s));
         let r = self.reader("optimizer.safetensors")?;
         let l = &mut learner.live;
@@ -846,9 +932,7 @@ impl Verified {
             r.u64s(&format!("{name}.t"), &mut t)?;
             let mut p = [0f32; 2];
             r.f32s(&format!("{name}.beta_pow"), &[2], &mut p)?;
-            st.t = t[0];
-            st.beta1_pow = p[0];
-            st.beta2_pow = p[1];
+            (st.t, st.beta1_pow, st.beta2_pow) = (t[0], p[0], p[1]);
         }
         let d = &mut l.duals;
         let mut eta = [0f32];
@@ -858,33 +942,27 @@ impl Verified {
         d.eta_penalty = eta[0];
         r.f32s("duals.alpha_mean_raw", &[ACT], &mut d.alpha_mean_raw)?;
         r.f32s("duals.alpha_cov_raw", &[ACT], &mut d.alpha_cov_raw)?;
-        r.f32s("duals.moments", &[4, ACT], d.moments.as_flattened_mut())?;
-        learner.updates = meta.updates;
-        let bad_meta = |m: &str| CheckpointError::Corrupt {
-            path: self.dir.join("meta.json"),
-            message: m.to_string(),
-        };
-        learner.rng_state =
-            unhex32(&meta.learner_rng).ok_or_else(|| bad_meta("bad learner_rng"))?;
+        r.f32s("duals.moments", &[4, ACT], d.moments.as_flattened_mut())
+    }
 
+    /// The replay's slots and ring counters.
+    fn load_replay<const CAP: usize, const OBS: usize, const ACT: usize>(
+        &self,
+        replay: &mut Replay<CAP, OBS, ACT>,
+    ) -> Result<(), CheckpointError> {
         let r = self.reader("replay.safetensors")?;
-        let c = meta.replay;
+        let c = self.meta.replay;
         let n = c.len as usize;
         if n > CAP {
-            return Err(bad_meta("replay length exceeds the capacity"));
+            return Err(self.bad_meta("replay length exceeds the capacity"));
         }
         let raw = replay.raw_columns_mut();
-        r.f32s("obs", &[n, OBS], &mut raw.obs.as_flattened_mut()[..n * OBS])?;
-        r.f32s(
-            "action",
-            &[n, ACT],
-            &mut raw.action.as_flattened_mut()[..n * ACT],
-        )?;
-        r.f32s(
-            "next_obs",
-            &[n, OBS],
-            &mut raw.next_obs.as_flattened_mut()[..n * OBS],
-        )?;
+        let obs = &mut raw.obs.as_flattened_mut()[..n * OBS];
+        r.f32s("obs", &[n, OBS], obs)?;
+        let action = &mut raw.action.as_flattened_mut()[..n * ACT];
+        r.f32s("action", &[n, ACT], action)?;
+        let next_obs = &mut raw.next_obs.as_flattened_mut()[..n * OBS];
+        r.f32s("next_obs", &[n, OBS], next_obs)?;
         r.f32s("reward", &[n], &mut raw.reward[..n])?;
         r.f32s("discount", &[n], &mut raw.discount[..n])?;
         r.f32s("behaviour_log_prob", &[n], &mut raw.behaviour_log_prob[..n])?;
@@ -896,7 +974,6 @@ impl Verified {
                 inserted: c.inserted,
                 current_episode: c.current_episode,
             })
-            .map_err(|e| bad_meta(&e.to_string()))?;
-        Ok(())
+            .map_err(|e| self.bad_meta(&e.to_string()))
     }
 }

@@ -207,14 +207,9 @@ fn timing(
     Ok((every, rate / every as f64))
 }
 
-/// `mpo render` for a loaded policy: the video and/or the contact sheet of `opts`.
-pub fn render(
-    task: &TaskDef,
-    checkpoint_env_steps: u64,
-    act_fn: &mut dyn FnMut(&[f32], &mut [f32]),
-    opts: &RenderOptions,
-) -> Result<RenderSummary, RenderError> {
-    let started = Instant::now();
+/// The request's checks, before anything is simulated: something to write, at least one
+/// episode and step, file names whose format is known. Returns the video's format.
+fn check_request(opts: &RenderOptions) -> Result<Option<Format>, RenderError> {
     if opts.out.is_none() && opts.strip.is_none() {
         return Err(RenderError::Invalid(
             "nothing to write: give --out and/or --strip".into(),
@@ -225,11 +220,74 @@ pub fn render(
             "--episodes and --steps must be at least 1".into(),
         ));
     }
-    // Every file name is checked before anything is simulated.
     let format = opts.out.as_deref().map(Format::of).transpose()?;
     if let Some(p) = &opts.strip {
         contact_sheet::check_path(p)?;
     }
+    Ok(format)
+}
+
+/// A contact sheet of `tiles` (each `w` x `h`) under `title`, written as a PNG.
+fn write_sheet(
+    path: &Path,
+    title: &str,
+    tiles: &[Tile],
+    w: usize,
+    h: usize,
+) -> Result<(), RenderError> {
+    let (sheet, sw, sh) = contact_sheet::compose(title, tiles, w, h);
+    contact_sheet::write_png(path, &sheet, sw, sh)?;
+    Ok(())
+}
+
+/// Which steps are pictured: every `every`-th up to `pictured` in the video, and
+/// `strip_frames` of those spread evenly over all episodes on the contact sheet.
+struct Pick {
+    pictured: u32,
+    every: u32,
+    per_episode: u64,
+    strip_at: Option<Vec<u64>>,
+}
+
+impl Pick {
+    fn new(pictured: u32, every: u32, opts: &RenderOptions) -> Self {
+        let per_episode = (pictured / every) as u64 + 1;
+        let slots = opts.episodes as u64 * per_episode;
+        Self {
+            pictured,
+            every,
+            per_episode,
+            strip_at: opts
+                .strip
+                .as_ref()
+                .map(|_| evenly(slots, opts.strip_frames)),
+        }
+    }
+
+    fn on_video(&self, step: u32) -> bool {
+        step <= self.pictured && step.is_multiple_of(self.every)
+    }
+
+    fn in_strip(&self, episode: u32, step: u32) -> bool {
+        let slot = episode as u64 * self.per_episode + (step / self.every) as u64;
+        self.on_video(step)
+            && self
+                .strip_at
+                .as_ref()
+                .is_some_and(|at| at.binary_search(&slot).is_ok())
+    }
+}
+
+/// `mpo render` for a loaded policy: the video and/or the contact sheet of `opts`. Its length
+/// is the frame sink (caption, video, tiles) and the summary's field list.
+pub fn render(
+    task: &TaskDef,
+    checkpoint_env_steps: u64,
+    act_fn: &mut dyn FnMut(&[f32], &mut [f32]),
+    opts: &RenderOptions,
+) -> Result<RenderSummary, RenderError> {
+    let started = Instant::now();
+    let format = check_request(opts)?;
     let spec = task.spec();
     let pictured = opts.steps.map_or(spec.episode_steps as u32, |s| {
         s.min(spec.episode_steps as u32)
@@ -241,13 +299,7 @@ pub fn render(
         Some(p) => Some(Video::create(p, opts.width, opts.height, fps)?),
         None => None,
     };
-    let per_episode = (pictured / every) as u64 + 1;
-    let on_video = |step: u32| step <= pictured && step.is_multiple_of(every);
-    let strip_at = evenly(opts.episodes as u64 * per_episode, opts.strip_frames);
-    let slot = |episode: u32, step: u32| episode as u64 * per_episode + (step / every) as u64;
-    let in_strip = |e: u32, s: u32| {
-        opts.strip.is_some() && on_video(s) && strip_at.binary_search(&slot(e, s)).is_ok()
-    };
+    let pick = Pick::new(pictured, every, opts);
     let has_video = video.is_some();
     let (scale, mut frame, mut tiles, mut frames) =
         (caption::scale_for(h), Vec::new(), Vec::new(), 0u64);
@@ -257,11 +309,11 @@ pub fn render(
         opts.episodes,
         &mut renderer,
         act_fn,
-        |e, s| (has_video && on_video(s)) || in_strip(e, s),
+        |e, s| (has_video && pick.on_video(s)) || pick.in_strip(e, s),
         |info, rgb| {
             frames += 1;
             let text = label(&info, opts.episodes);
-            if in_strip(info.episode, info.step) {
+            if pick.in_strip(info.episode, info.step) {
                 tiles.push(Tile {
                     rgb: rgb.to_vec(),
                     label: text.clone(),
@@ -291,8 +343,7 @@ pub fn render(
                 .collect::<Vec<_>>()
                 .join(", ")
         );
-        let (sheet, sw, sh) = contact_sheet::compose(&title, &tiles, w, h);
-        contact_sheet::write_png(p, &sheet, sw, sh)?;
+        write_sheet(p, &title, &tiles, w, h)?;
     }
     Ok(RenderSummary {
         task: task.name().into(),
@@ -399,9 +450,13 @@ impl EvaluationStrips {
             task.name(),
             returns[0]
         );
-        let (sheet, sw, sh) =
-            contact_sheet::compose(&title, &tiles, self.width as usize, self.height as usize);
-        contact_sheet::write_png(&path, &sheet, sw, sh)?;
+        write_sheet(
+            &path,
+            &title,
+            &tiles,
+            self.width as usize,
+            self.height as usize,
+        )?;
         Ok(Some(path))
     }
 }

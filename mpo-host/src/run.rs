@@ -306,7 +306,8 @@ struct Outcome {
     cycle: Option<Histogram<u64>>,
 }
 
-/// Runs `policy` (the checkpoint's online policy) on the task as `req` says.
+/// Runs `policy` (the checkpoint's online policy) on the task as `req` says. Most of its length
+/// is the summary's field list.
 pub fn run(policy: &dyn Policy, req: RunRequest<'_>) -> Result<RunSummary, RunError> {
     let deadline = req.link.as_ref().map(|o| o.deadline);
     let link = start_link(policy, &req)?;
@@ -377,7 +378,8 @@ pub fn run(policy: &dyn Policy, req: RunRequest<'_>) -> Result<RunSummary, RunEr
 
 /// Steps episodes until the limit or an interrupt: episode `i` on a fresh environment of
 /// evaluation seed `i`, each built outside the paced loop (loading a model takes
-/// milliseconds).
+/// milliseconds). The paced loop is kept in one piece so that everything between two wake-ups
+/// can be read at once.
 fn episodes(
     req: &RunRequest<'_>,
     actuator: &mut Actuator<'_>,
@@ -479,7 +481,8 @@ fn show(
     }
 }
 
-/// The human-readable table of a run (printed on stderr).
+/// The human-readable table of a run (printed on stderr). One `push_str` per line of the
+/// table, in the order printed: longer than a screen, but read top to bottom like its output.
 pub fn table(s: &RunSummary) -> String {
     let mut t = String::new();
     let mode = match s.rate_hz {

@@ -417,6 +417,38 @@ impl Settings {
                 self.steps
             ));
         }
+        self.validate_schedule(episode_steps, sizes)?;
+        let m = &self.mpo;
+        match m.policy_evaluation {
+            PolicyEvaluation::NStep if m.n_step == 0 || m.n_step as usize > MAX_NSTEP => {
+                return bad(format!(
+                    "mpo.n_step = {} must be in 1..={MAX_NSTEP} for n-step returns",
+                    m.n_step
+                ));
+            }
+            PolicyEvaluation::Retrace if m.n_step == 0 || m.n_step as usize > sizes.seq => {
+                return bad(format!(
+                    "mpo.n_step = {} is the Retrace sequence length: it must be in 1..={} (the `{}`/`{}` row's `seq`)",
+                    m.n_step, sizes.seq, self.task, self.net
+                ));
+            }
+            _ => {}
+        }
+        if m.shared_samples && sizes.m != sizes.n {
+            return bad(format!(
+                "mpo.shared_samples needs M = N; the `{}`/`{}` row has M = {}, N = {}",
+                self.task, self.net, sizes.m, sizes.n
+            ));
+        }
+        m.to_config()
+            .validate()
+            .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))
+    }
+
+    /// The schedule's ranges: intervals on episode boundaries, exploration noise of one kind
+    /// and not with Retrace, a warm-up that fills a batch.
+    fn validate_schedule(&self, episode_steps: u64, sizes: &Sizes) -> Result<(), SettingsError> {
+        let bad = |m: String| Err(SettingsError::Invalid(m));
         let s = &self.schedule;
         if s.eval_interval == 0 || !s.eval_interval.is_multiple_of(episode_steps) {
             return bad(format!(
@@ -457,31 +489,7 @@ impl Settings {
                 s.warmup_steps, sizes.batch
             ));
         }
-        let m = &self.mpo;
-        match m.policy_evaluation {
-            PolicyEvaluation::NStep if m.n_step == 0 || m.n_step as usize > MAX_NSTEP => {
-                return bad(format!(
-                    "mpo.n_step = {} must be in 1..={MAX_NSTEP} for n-step returns",
-                    m.n_step
-                ));
-            }
-            PolicyEvaluation::Retrace if m.n_step == 0 || m.n_step as usize > sizes.seq => {
-                return bad(format!(
-                    "mpo.n_step = {} is the Retrace sequence length: it must be in 1..={} (the `{}`/`{}` row's `seq`)",
-                    m.n_step, sizes.seq, self.task, self.net
-                ));
-            }
-            _ => {}
-        }
-        if m.shared_samples && sizes.m != sizes.n {
-            return bad(format!(
-                "mpo.shared_samples needs M = N; the `{}`/`{}` row has M = {}, N = {}",
-                self.task, self.net, sizes.m, sizes.n
-            ));
-        }
-        m.to_config()
-            .validate()
-            .map_err(|e| SettingsError::Invalid(format!("mpo: {e}")))
+        Ok(())
     }
 }
 

@@ -152,19 +152,7 @@ impl<
         let (mut episodes, mut stats) = (0, StatsAccumulator::default());
         let mut obs64 = [0f64; OBS];
         if let Some(v) = resume {
-            v.restore(&mut agent.learner, &mut agent.replay)?;
-            let m = &v.meta;
-            let bad = |what: &str| CheckpointError::Corrupt {
-                path: v.dir.join("meta.json"),
-                message: format!("bad {what}"),
-            };
-            agent.collector =
-                checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?;
-            agent.sampler =
-                checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?;
-            agent.env_steps = m.env_steps;
-            episodes = m.episodes;
-            stats = m.stats.clone();
+            (episodes, stats) = Self::restore(&mut agent, v)?;
             // The environment's RandomState advances once per reset: replay the resets.
             for _ in 0..episodes {
                 env.reset(&mut obs64);
@@ -194,6 +182,25 @@ impl<
             device: None,
             device_action: [0.0; ACT],
         })
+    }
+
+    /// The agent's state from a checkpoint: networks, optimiser, replay, the three random
+    /// streams and the counters. Returns the episodes completed and the pending statistics.
+    fn restore(
+        agent: &mut Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>,
+        v: &Verified,
+    ) -> Result<(u64, StatsAccumulator), TrainError> {
+        v.restore(&mut agent.learner, &mut agent.replay)?;
+        let m = &v.meta;
+        let bad = |what: &str| CheckpointError::Corrupt {
+            path: v.dir.join("meta.json"),
+            message: format!("bad {what}"),
+        };
+        agent.collector =
+            checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?;
+        agent.sampler = checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?;
+        agent.env_steps = m.env_steps;
+        Ok((m.episodes, m.stats.clone()))
     }
 
     /// Environment steps taken.
@@ -295,6 +302,9 @@ impl<
 
     /// [`Trainer::collect`] that, with `stop_at_episode_end`, stops after the step that ends
     /// an episode; returns the steps taken.
+    ///
+    /// One step is observe, act, step the plant, store, learn: kept in one loop over buffers
+    /// owned by the trainer, so nothing between them allocates.
     pub fn collect_until(
         &mut self,
         steps: u64,
