@@ -134,39 +134,42 @@ pub struct MetricsRow {
     pub stats: Vec<Option<f64>>,
 }
 
-fn fmt_opt(v: Option<f64>) -> String {
-    v.map(|x| x.to_string()).unwrap_or_default()
-}
+/// The columns of `metrics.csv` before the learner statistics.
+const COLUMNS: [&str; 8] = [
+    "env_steps",
+    "updates",
+    "episodes",
+    "wall_s",
+    "eval_return_mean",
+    "eval_return_std",
+    "env_steps_per_s",
+    "updates_per_s",
+];
 
 /// Writes `metrics.csv` and `metrics.jsonl` in `dir` from all rows (rewritten whole, so a
 /// resumed run never leaves rows of an abandoned future behind).
 pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
-    let mut csv = String::from(
-        "env_steps,updates,episodes,wall_s,eval_return_mean,eval_return_std,env_steps_per_s,updates_per_s",
-    );
-    for n in STAT_NAMES {
-        csv.push(',');
-        csv.push_str(n);
-    }
-    csv.push('\n');
+    let mut csv = csv::Writer::from_writer(Vec::new());
+    csv.write_record(COLUMNS.iter().chain(STAT_NAMES.iter()))?;
     let mut jsonl = String::new();
     for r in rows {
-        csv.push_str(&format!(
-            "{},{},{},{:.3},{},{},{:.1},{:.1}",
-            r.env_steps,
-            r.updates,
-            r.episodes,
-            r.wall_s,
-            r.eval_return_mean,
-            r.eval_return_std,
-            r.env_steps_per_s,
-            r.updates_per_s
-        ));
-        for v in &r.stats {
-            csv.push(',');
-            csv.push_str(&fmt_opt(*v));
-        }
-        csv.push('\n');
+        let mut record = vec![
+            r.env_steps.to_string(),
+            r.updates.to_string(),
+            r.episodes.to_string(),
+            format!("{:.3}", r.wall_s),
+            r.eval_return_mean.to_string(),
+            r.eval_return_std.to_string(),
+            format!("{:.1}", r.env_steps_per_s),
+            format!("{:.1}", r.updates_per_s),
+        ];
+        // A statistic not recorded yet (before learning starts) is an empty cell.
+        record.extend(
+            r.stats
+                .iter()
+                .map(|v| v.map(|x| x.to_string()).unwrap_or_default()),
+        );
+        csv.write_record(&record)?;
         let mut obj = serde_json::Map::new();
         obj.insert("env_steps".into(), r.env_steps.into());
         obj.insert("updates".into(), r.updates.into());
@@ -182,6 +185,7 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
         jsonl.push_str(&serde_json::Value::Object(obj).to_string());
         jsonl.push('\n');
     }
-    crate::durable::write_atomic(&dir.join("metrics.csv"), csv.as_bytes())?;
+    let csv = csv.into_inner().map_err(|e| e.into_error())?;
+    crate::durable::write_atomic(&dir.join("metrics.csv"), &csv)?;
     crate::durable::write_atomic(&dir.join("metrics.jsonl"), jsonl.as_bytes())
 }

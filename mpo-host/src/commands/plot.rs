@@ -201,16 +201,16 @@ fn jsonl_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
 }
 
 /// The same from a `metrics.csv` (for run directories kept without their JSON lines): the
-/// columns found by name in the header, as `metrics::write_all` writes them (no quoting).
+/// columns found by name in the header.
 fn csv_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let bad = |m: String| Error::Plot(format!("{}: {m}", path.display()));
+    let mut reader = csv::Reader::from_path(path).map_err(|e| bad(e.to_string()))?;
+    let header = reader.headers().map_err(|e| bad(e.to_string()))?.clone();
     let col = |k: &str| {
-        header.iter().position(|h| *h == k).ok_or_else(|| {
-            Error::Plot(format!("{}: no column `{k}` in the header", path.display()))
-        })
+        header
+            .iter()
+            .position(|h| h == k)
+            .ok_or_else(|| bad(format!("no column `{k}` in the header")))
     };
     let cols = [
         col("env_steps")?,
@@ -218,20 +218,14 @@ fn csv_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
         col("eval_return_std")?,
     ];
     let mut pts = Vec::new();
-    for (i, line) in lines.enumerate() {
-        let cells: Vec<&str> = line.split(',').collect();
+    for (i, record) in reader.records().enumerate() {
+        let record = record.map_err(|e| bad(e.to_string()))?;
         let mut v = [0.0; 3];
         for (x, &c) in v.iter_mut().zip(&cols) {
-            *x = cells
+            *x = record
                 .get(c)
                 .and_then(|s| s.trim().parse().ok())
-                .ok_or_else(|| {
-                    Error::Plot(format!(
-                        "{} line {}: column {c} is not a number",
-                        path.display(),
-                        i + 2
-                    ))
-                })?;
+                .ok_or_else(|| bad(format!("line {}: column {c} is not a number", i + 2)))?;
         }
         pts.push((v[0] as u64, v[1], v[2]));
     }
