@@ -30,6 +30,8 @@ pub mod adam;
 #[cfg(feature = "train")]
 pub mod agent;
 #[cfg(feature = "train")]
+pub mod batch;
+#[cfg(feature = "train")]
 pub mod config;
 #[cfg(feature = "train")]
 pub mod critic;
@@ -46,6 +48,8 @@ pub mod learner;
 pub mod linear;
 #[cfg(feature = "train")]
 pub mod mstep;
+#[cfg(feature = "train")]
+mod nets;
 pub mod obs_norm;
 #[cfg(feature = "train")]
 pub mod parallel;

@@ -6,7 +6,7 @@
 
 use bytemuck::Zeroable;
 
-use crate::learner::BatchChunk;
+use crate::batch::BatchChunk;
 use crate::rng::Rng;
 
 /// The longest n-step transition [`Replay::fill_batch`] folds.

@@ -36,7 +36,7 @@ fn best(s: &[f32; OBS]) -> [f32; ACT] {
 /// Fills position 0 of every row with a contextual bandit: reward `-|a - f(s)|^2`, terminal.
 /// Works for any chunking of a 64-row batch.
 fn fill_bandit<const BC2: usize, const C2: usize>(
-    batch: &mut [mpo_core::learner::BatchChunk<BC2, SEQ, OBS, ACT>; C2],
+    batch: &mut [mpo_core::batch::BatchChunk<BC2, SEQ, OBS, ACT>; C2],
     rng: &mut Rng,
 ) {
     for n in 0..BC2 * C2 {
@@ -639,7 +639,7 @@ fn multipliers_written_out(
 /// gradient's sign whatever its size).
 #[test]
 fn multiplier_steps_equal_the_optimiser_written_out() {
-    use mpo_core::learner::Duals;
+    use mpo_core::mstep::Duals;
     use mpo_core::mstep::update_multipliers;
     let (eps_mean, eps_cov) = (0.01f32, 1e-4f32);
     // Dimension 0: 0.8 of the whole bound (above eps / 2); dimension 1: 0.05 of it.
