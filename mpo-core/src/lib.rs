@@ -20,7 +20,7 @@
 #![no_std]
 #![deny(missing_docs)]
 // The exceptions: `linear::mul_add`, which calls the FMA instruction when the build enables it
-// (a register-only intrinsic), and `wide`, the 512-bit kernel chosen at run time.
+// (a register-only intrinsic), and `linear::wide`, the 512-bit kernels chosen at run time.
 #![deny(unsafe_code)]
 #![allow(clippy::needless_range_loop)]
 
@@ -60,7 +60,5 @@ pub mod rng;
 #[cfg(feature = "train")]
 pub mod selfcheck;
 pub mod squash;
-#[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-pub mod wide;
 
 pub use bytemuck;

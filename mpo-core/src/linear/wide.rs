@@ -30,7 +30,7 @@ use core::arch::x86_64::{
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
-use crate::linear::Start;
+use super::order::Start;
 
 /// Floats per 512-bit register.
 const W: usize = 16;
