@@ -356,25 +356,17 @@ mod tests {
         }
     }
 
-    /// The 512-bit kernel (`wide`, taken where the CPU has AVX-512F) equals the 8-wide one and
-    /// the reference order bit for bit: every start kind, with and without the fused ReLU,
-    /// pre-activations of both signed zeros, and sizes that leave 8-wide and narrow outputs
-    /// (118 = 2 x 48 + 16 + 6) and 8-, 4- and 1-sample tiles (13 rows). On a CPU without
-    /// AVX-512 both calls take the 8-wide path, which the test says on stderr.
-    #[test]
-    fn wide_kernel_equals_the_8_wide_kernel_bits() {
+    /// A batch forward `run(x, w, start, relu, y)` equals the reference order bit for bit:
+    /// every start kind, with and without the fused ReLU, pre-activations of both signed zeros,
+    /// and sizes that leave 8-wide and narrow outputs (118 = 2 x 48 + 16 + 6) and 8-, 4- and
+    /// 1-sample tiles (13 rows).
+    fn forward_matches_the_reference_order(
+        path: &str,
+        run: impl Fn(&[[f32; 21]], &[[f32; 118]; 21], Start<'_, 118>, bool, &mut [[f32; 118]]),
+    ) {
         const I: usize = 21;
         const O: usize = 118;
         const B: usize = 13;
-        #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-        let wide = wide::enabled();
-        #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
-        let wide = false;
-        if !wide {
-            std::eprintln!(
-                "wide_kernel_equals_the_8_wide_kernel_bits: no AVX-512 on this CPU, only the 8-wide path ran"
-            );
-        }
         let mut l = layer::<I, O>(31);
         let mut x = [[0f32; I]; B];
         Rng::seed_from_u64(32).fill_normal(x.as_flattened_mut());
@@ -401,14 +393,8 @@ mod tests {
                 _ => Start::Rows(&rows),
             };
             for relu in [false, true] {
-                let (mut a, mut b) = (rows, rows);
-                if relu {
-                    kernel::<I, O, true>(&x, &l.w, start, &mut a);
-                    kernel_from::<I, O, true>(&x, &l.w, start, &mut b, 0);
-                } else {
-                    kernel::<I, O, false>(&x, &l.w, start, &mut a);
-                    kernel_from::<I, O, false>(&x, &l.w, start, &mut b, 0);
-                }
+                let mut y = rows;
+                run(&x, &l.w, start, relu, &mut y);
                 for n in 0..B {
                     let mut r = match kind {
                         1 => l.b,
@@ -422,12 +408,53 @@ mod tests {
                     for o in 0..O {
                         let r = if relu { relu_one(r[o]) } else { r[o] };
                         let at = format_args!("start {kind} relu {relu} n {n} o {o}");
-                        assert_eq!(a[n][o].to_bits(), b[n][o].to_bits(), "wide vs 8-wide, {at}");
-                        assert_eq!(b[n][o].to_bits(), r.to_bits(), "8-wide vs reference, {at}");
+                        assert_eq!(y[n][o].to_bits(), r.to_bits(), "{path} vs reference, {at}");
                     }
                 }
             }
         }
+    }
+
+    /// The 8-wide kernels (all of [`kernel`] where the 512-bit path is off) keep the order.
+    #[test]
+    fn tiled_kernel_matches_the_reference_order() {
+        forward_matches_the_reference_order("8-wide", |x, w, start, relu, y| {
+            if relu {
+                kernel_from::<21, 118, true>(x, w, start, y, 0);
+            } else {
+                kernel_from::<21, 118, false>(x, w, start, y, 0);
+            }
+        });
+    }
+
+    /// The 512-bit kernel, with the 8-wide ones for the outputs it leaves (what [`kernel`]
+    /// runs where AVX-512F is on), keeps the order. Compiled only where the CPU that built the
+    /// tests has AVX-512F (`mpo-core/build.rs` sets `mpo_avx512f`): elsewhere the 512-bit code
+    /// cannot run, so there is no test rather than one that passes without running it.
+    #[cfg(all(mpo_avx512f, target_arch = "x86_64", target_feature = "fma"))]
+    #[test]
+    fn wide_kernel_matches_the_reference_order() {
+        assert!(
+            wide::detected(),
+            "built on a CPU with AVX-512F, run on one without"
+        );
+        forward_matches_the_reference_order("512-bit", |x, w, start, relu, y| {
+            // SAFETY: the CPU has AVX-512F (asserted above).
+            #[allow(unsafe_code)]
+            let o0 = unsafe {
+                if relu {
+                    wide::kernel::<21, 118, true>(x, w, start, y)
+                } else {
+                    wide::kernel::<21, 118, false>(x, w, start, y)
+                }
+            };
+            assert_eq!(o0, 112, "the 512-bit kernel's share of 118 outputs");
+            if relu {
+                kernel_from::<21, 118, true>(x, w, start, y, o0);
+            } else {
+                kernel_from::<21, 118, false>(x, w, start, y, o0);
+            }
+        });
     }
 
     #[test]
@@ -488,12 +515,13 @@ mod tests {
         }
     }
 
-    /// The 512-bit weight gradient (where the CPU has AVX-512F) equals the 8-wide one and the
-    /// reference order bit for bit, on uneven chunks and row ranges that leave 8-row, single-row,
-    /// 8-wide and narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21). On a
-    /// CPU without AVX-512 both calls take the 8-wide path, which the test says on stderr.
-    #[test]
-    fn wide_weight_gradient_equals_the_8_wide_bits() {
+    /// A chunked weight gradient `run(chunks, dy_chunks, i0, rows)` equals the reference order
+    /// bit for bit, on uneven chunks and row ranges that leave 8-row, single-row, 8-wide and
+    /// narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21).
+    fn weight_gradient_matches_the_reference_order(
+        path: &str,
+        run: impl Fn(&[&[[f32; 21]]], &[&[[f32; 118]]], usize, &mut [[f32; 118]]),
+    ) {
         const I: usize = 21;
         const O: usize = 118;
         const B: usize = 13;
@@ -504,16 +532,9 @@ mod tests {
         rng.fill_normal(dy.as_flattened_mut());
         let xs: [&[[f32; I]]; 3] = [&x[..6], &x[6..7], &x[7..]];
         let ds: [&[[f32; O]]; 3] = [&dy[..6], &dy[6..7], &dy[7..]];
-        #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-        if !wide::enabled() {
-            std::eprintln!(
-                "wide_weight_gradient_equals_the_8_wide_bits: no AVX-512 on this CPU, only the 8-wide path ran"
-            );
-        }
-        let (mut a, mut b) = ([[0f32; O]; I], [[0f32; O]; I]);
+        let mut g = [[0f32; O]; I];
         for (i0, i1) in [(0, 11), (11, I)] {
-            weight_grad_chunks(&xs, &ds, i0, &mut a[i0..i1]);
-            weight_grad_from(&xs, &ds, i0, &mut b[i0..i1], 0);
+            run(&xs, &ds, i0, &mut g[i0..i1]);
         }
         for i in 0..I {
             for o in 0..O {
@@ -521,17 +542,37 @@ mod tests {
                 for n in 0..B {
                     r = libm::fmaf(x[n][i], dy[n][o], r);
                 }
-                assert_eq!(
-                    a[i][o].to_bits(),
-                    b[i][o].to_bits(),
-                    "wide vs 8-wide i {i} o {o}"
-                );
-                assert_eq!(
-                    b[i][o].to_bits(),
-                    r.to_bits(),
-                    "8-wide vs reference i {i} o {o}"
-                );
+                let (got, want) = (g[i][o].to_bits(), r.to_bits());
+                assert_eq!(got, want, "{path} vs reference i {i} o {o}");
             }
         }
+    }
+
+    /// The 8-wide weight gradient (all of [`weight_grad_chunks`] where the 512-bit path is
+    /// off) keeps the order.
+    #[test]
+    fn tiled_weight_gradient_matches_the_reference_order() {
+        weight_gradient_matches_the_reference_order("8-wide", |x, dy, i0, g| {
+            weight_grad_from(x, dy, i0, g, 0);
+        });
+    }
+
+    /// The 512-bit weight gradient, with the 8-wide one for the columns it leaves, keeps the
+    /// order; compiled only where the building CPU has AVX-512F, like
+    /// `wide_kernel_matches_the_reference_order`.
+    #[cfg(all(mpo_avx512f, target_arch = "x86_64", target_feature = "fma"))]
+    #[test]
+    fn wide_weight_gradient_matches_the_reference_order() {
+        assert!(
+            wide::detected(),
+            "built on a CPU with AVX-512F, run on one without"
+        );
+        weight_gradient_matches_the_reference_order("512-bit", |x, dy, i0, g| {
+            // SAFETY: the CPU has AVX-512F (asserted above).
+            #[allow(unsafe_code)]
+            let o0 = unsafe { wide::weight_grad::<21, 118>(x, dy, i0, g) };
+            assert_eq!(o0, 112, "the 512-bit gradient's share of 118 columns");
+            weight_grad_from(x, dy, i0, g, o0);
+        });
     }
 }
