@@ -1,5 +1,6 @@
 //! The non-parametric E-step: the temperature `eta*` from the convex dual, then the sample
-//! weights `q_ij = softmax_j(Q_ij / eta*)` (paper eq. 7-8; ALGORITHM-NOTES.md items 2-3).
+//! weights `q_ij = softmax_j(Q_ij / eta*)` (paper eq. 7-8; derived in `docs/algorithm.md`,
+//! "E-step").
 //!
 //! With `M` actions sampled per state from the old policy, the sample-based dual is
 //! `g(eta) = eta eps + eta mean_i log mean_j exp(Q_ij / eta)`, evaluated per state with a

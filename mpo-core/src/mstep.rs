@@ -1,5 +1,6 @@
-//! The M-step (paper eq. 9-10, with the decoupled constraints of ALGORITHM-NOTES.md item 1):
-//! fit the parametric policy to the E-step's weighted samples under KL trust regions.
+//! The M-step (paper eq. 9-10, with the decoupled constraints derived in `docs/algorithm.md`,
+//! "M-step"): fit the parametric policy to the E-step's weighted samples under KL trust
+//! regions.
 //!
 //! Per state, with `pi_old` the target policy, `pi = N(mu, L L^T)` the online one and the
 //! weighted samples summarised in [`SampleStats`], the loss is

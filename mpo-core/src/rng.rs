@@ -6,7 +6,7 @@
 use rand_core::{Rng as _, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 
-/// The tags of the learner's per-row random streams ([`super::Rng::for_stream`]), in one
+/// The tags of the learner's per-row random streams ([`Rng::for_stream`]), in one
 /// list so no two uses share a stream.
 pub mod stream {
     /// The E-step's `M` samples at a row's state.

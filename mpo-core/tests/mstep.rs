@@ -198,9 +198,8 @@ fn multipliers_rise_while_the_kl_exceeds_its_bound_and_fall_below_it() {
 
 /// A covariance bound a thousand times tighter than the report's is held at its own scale.
 /// How tight a bound an M-step can hold is limited by its optimiser: Adam moves each parameter
-/// by about `lr` per step whatever the gradient, so with the report's `lr = 3e-4` the measured
-/// floor is near `1e-7` (this test, measured: 1.2 x the bound at 1e-7, 5.6 x at 1e-8 and 48 x
-/// at 1e-9; with `lr = 3e-3`, 3.2 x at 1e-6).
+/// by about `lr` per step whatever the gradient, so with the report's `lr = 3e-4` the floor
+/// is near `1e-7` (the ratios this test measured at other bounds: docs/core.md, "Proofs").
 #[test]
 fn tiny_covariance_bound_is_met_relative_to_itself() {
     let eps = 1e-7f32;

@@ -39,7 +39,7 @@
 //! memory, `stats` what an update reports ([`UpdateStats`]), `error` why it failed. The
 //! per-row work of each phase lives beside its maths, written once over a chunk's rows:
 //! [`crate::evaluation`] (targets), [`crate::estep`] (samples, dual terms, weights) and
-//! [`crate::mstep`] (loss terms and head gradients), through [`crate::nets`] for the target
+//! [`crate::mstep`] (loss terms and head gradients), through the private `nets` for the target
 //! networks.
 
 mod error;

@@ -9,8 +9,8 @@ use super::order::{Start, mul_add, relu_one};
 /// Floats per AVX2 register: the kernels' unit of output width.
 const LANES: usize = 8;
 /// Samples per tile of the batch forward kernel: 4 x 3 accumulators, 3 weight registers and
-/// one broadcast fill the 16 AVX2 registers (measured best of 4x16, 5x16, 6x16, 8x8, 3x32,
-/// 2x32 on this machine).
+/// one broadcast fill the 16 AVX2 registers (the other shapes tried were slower:
+/// docs/core.md, "Kernels").
 const TILE_N: usize = 4;
 /// Samples per tile of the narrow-output kernel.
 const TILE_N_NARROW: usize = 8;
