@@ -72,7 +72,7 @@ fn measure_peak() -> f64 {
 }
 
 /// The same peak measured with 16-wide (512-bit) fused multiply-adds, on a CPU that has
-/// AVX-512 (`None` elsewhere): the ceiling of `mpo_core::wide`'s kernels, as the 8-wide peak
+/// AVX-512 (`None` elsewhere): the ceiling of `mpo_core::linear::wide`'s kernels, as the 8-wide peak
 /// is of the others (docs/core.md, "512-bit kernels on an AVX-512 CPU").
 fn measure_peak_512() -> Option<f64> {
     if !std::arch::is_x86_feature_detected!("avx512f") {
@@ -324,17 +324,17 @@ fn main() {
     let on = |g: &str| filter.is_empty() || g.contains(filter.as_str());
     let peak = measure_peak();
     let mut rows = Vec::new();
-    let wide = mpo_core::wide::detected();
+    let wide = mpo_core::linear::wide::detected();
     if on("layer") {
         if wide {
             // Both paths in one run: the 8-wide kernels first, then the default 512-bit one.
-            mpo_core::wide::set_enabled(false);
+            mpo_core::linear::wide::set_enabled(false);
             let from = rows.len();
             layer_rows(&mut rows);
             for r in &mut rows[from..] {
                 r.name.push_str(" (8-wide, AVX-512 off)");
             }
-            mpo_core::wide::set_enabled(true);
+            mpo_core::linear::wide::set_enabled(true);
         }
         layer_rows(&mut rows);
     }
@@ -367,7 +367,7 @@ fn main() {
     );
     println!(
         "batch forward and weight-gradient kernels: {}",
-        if mpo_core::wide::enabled() {
+        if mpo_core::linear::wide::enabled() {
             "512-bit (AVX-512F detected)"
         } else {
             "8-wide (no AVX-512)"

@@ -187,10 +187,10 @@ fn main() {
     bench::<5, 1, 1, 20, 20>("cartpole 5/1, shared samples", shared, &one, &two);
     bench::<24, 6, 21, 20, 20>("walker 24/6, shared samples", shared, &one, &two);
     bench::<24, 6, 21, 20, 20>("walker 24/6, Retrace 5", retrace, &one, &two);
-    if mpo_core::wide::enabled() {
+    if mpo_core::linear::wide::enabled() {
         // The same configurations with the 512-bit kernels (forward and weight gradient)
         // turned off: the same bits, the 8-wide speed.
-        mpo_core::wide::set_enabled(false);
+        mpo_core::linear::wide::set_enabled(false);
         bench::<5, 1, 1, 20, 20>("cartpole 5/1, 8-wide kernels", base, &one, &two);
         bench::<24, 6, 21, 20, 20>(
             "walker 24/6, shared samples, 8-wide kernels",
@@ -198,6 +198,6 @@ fn main() {
             &one,
             &two,
         );
-        mpo_core::wide::set_enabled(true);
+        mpo_core::linear::wide::set_enabled(true);
     }
 }

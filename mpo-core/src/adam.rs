@@ -175,10 +175,9 @@ impl AdamState {
 ///
 /// Why: the moments of a parameter whose gradient has stopped (a dead ReLU unit, a constant
 /// input) decay geometrically and spend thousands of steps as subnormal numbers, and every
-/// arithmetic operation on a subnormal takes a microcode assist on x86. Measured: 90,078 of the
-/// 308,508 optimizer words of a walker-run checkpoint at 104k steps were subnormal, Adam took
-/// most of the update's time, and 2000 updates resumed from it ran 3.5x faster with this
-/// flush (docs/core.md). The CPU's flush-to-zero
+/// arithmetic operation on a subnormal takes a microcode assist on x86, which once made Adam
+/// most of an update's time (docs/core.md, "Subnormal optimizer moments", has the
+/// measurement and its command). The CPU's flush-to-zero
 /// mode would change results between the host and the software-float firmware; this explicit
 /// flush is the same on every target. It changes no parameter in practice: a moment below
 /// 1.2e-38 moves a parameter by less than 1e-30 relative to `lr`, far below any non-zero

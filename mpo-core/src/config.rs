@@ -2,7 +2,8 @@
 //!
 //! Defaults are the report's (Table 1: eps 0.1, eps_mean 0.1, eps_cov 1e-4, gamma 0.99, Adam
 //! 3e-4, five M-step iterations, actor gradient norm clipped at 0.1). Alternatives from the
-//! reference implementations (ALGORITHM-NOTES.md), all expressible here:
+//! reference implementations (`docs/algorithm.md`, "Settings of other implementations"), all
+//! expressible here:
 //! - Acme: `per_dim_kl = true` with eps_mean 2.5e-3 and eps_cov 1e-6 per dimension, dual lr
 //!   1e-2, actor lr 1e-4, gradient clip 40, 5-step returns, target period 100;
 //! - tonic: eps_mean 1e-3, eps_cov 1e-6, lr 3e-4, 5-step returns;

@@ -1,5 +1,6 @@
 //! The non-parametric E-step: the temperature `eta*` from the convex dual, then the sample
-//! weights `q_ij = softmax_j(Q_ij / eta*)` (paper eq. 7-8; ALGORITHM-NOTES.md items 2-3).
+//! weights `q_ij = softmax_j(Q_ij / eta*)` (paper eq. 7-8; derived in `docs/algorithm.md`,
+//! "E-step").
 //!
 //! With `M` actions sampled per state from the old policy, the sample-based dual is
 //! `g(eta) = eta eps + eta mean_i log mean_j exp(Q_ij / eta)`, evaluated per state with a
@@ -12,6 +13,12 @@
 //! `Q` of any scale or offset gives the same weights.
 //!
 //! Shapes: `q` is `[B][M]` (state-major), `weights` the same.
+
+use bytemuck::Zeroable;
+
+use crate::gaussian::{Gaussian, SampleStats};
+use crate::nets::TargetNets;
+use crate::rng::{Rng, stream};
 
 /// Lower clamp of the temperature (as in Acme, about `exp(-18)`).
 pub const ETA_MIN: f64 = 1e-8;
@@ -35,7 +42,7 @@ pub struct EStepSolution {
 }
 
 /// One state's share of the dual at a temperature (see [`dual_row`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Zeroable)]
 pub struct DualRow {
     /// `log mean_j exp(Q_j / eta)`.
     pub lse: f64,
@@ -213,6 +220,162 @@ pub fn weights<const M: usize>(q: &[[f32; M]], eta: f32, weights: &mut [[f32; M]
         }
     }
     kl / q.len() as f64
+}
+
+/// `|a - clip(a, -1, 1)|^2`: how far an action lies outside the actuators' range (the
+/// objective of action penalization is its negative).
+pub fn action_excess<const A: usize>(a: &[f32; A]) -> f32 {
+    let mut s = 0.0;
+    for &x in a {
+        let d = x - x.clamp(-1.0, 1.0);
+        s += d * d;
+    }
+    s
+}
+
+/// The E-step on one batch chunk of `BC` states: `M` actions per state from the target
+/// policy, their target-critic values, the dual's terms at a temperature, and the weighted
+/// samples the M-step fits.
+#[derive(Zeroable)]
+pub(crate) struct EStepRows<const ACT: usize, const BC: usize, const M: usize> {
+    /// The target policy `pi_old` at each state.
+    pub old: [Gaussian<ACT>; BC],
+    /// Sample `j` of state `n` at `[j][n]` (sample-major: one critic pass per `j`).
+    pub samples: [[[f32; ACT]; BC]; M],
+    /// `Q'(s_n, a_nj)`, state-major.
+    pub q: [[f32; M]; BC],
+    /// The penalty objective `-|a_nj - clip(a_nj)|^2` (with action penalization).
+    pub q_penalty: [[f32; M]; BC],
+    /// Each state's terms of the dual at the temperature last evaluated.
+    pub dual: [DualRow; BC],
+    /// `KL(q_n || pi_old)` of each state's weights at the solved temperature.
+    pub kl: [f32; BC],
+    /// Each state's weighted samples, summarised for the M-step.
+    pub stats: [SampleStats<ACT>; BC],
+}
+
+/// Sums over the E-step's samples of a batch, added in batch order.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SampleSums {
+    /// Sum of `Q`.
+    pub q: f64,
+    /// Smallest `Q`.
+    pub q_min: f32,
+    /// Largest `Q`.
+    pub q_max: f32,
+    /// Sum of [`action_excess`].
+    pub excess: f64,
+}
+
+impl Default for SampleSums {
+    fn default() -> Self {
+        Self {
+            q: 0.0,
+            q_min: f32::INFINITY,
+            q_max: f32::NEG_INFINITY,
+            excess: 0.0,
+        }
+    }
+}
+
+impl<const ACT: usize, const BC: usize, const M: usize> EStepRows<ACT, BC, M> {
+    /// The target policy at the states `obs` (kept in `old`), `M` draws per state and their
+    /// values. State `n` draws from its own stream, keyed by the update's `seed` and its row
+    /// in the batch, `first_row + n`.
+    pub fn sample<const OBS: usize>(
+        &mut self,
+        nets: &mut impl TargetNets<OBS, ACT, BC>,
+        obs: &[[f32; OBS]; BC],
+        seed: u64,
+        first_row: usize,
+    ) {
+        nets.policy_at(obs, &mut self.old);
+        for n in 0..BC {
+            let mut z = [[0f32; ACT]; M];
+            Rng::for_stream(seed, stream::ESTEP, (first_row + n) as u32)
+                .fill_normal(z.as_flattened_mut());
+            for j in 0..M {
+                self.old[n].transform(&z[j], &mut self.samples[j][n]);
+            }
+        }
+        for j in 0..M {
+            let q = nets.values(&self.samples[j]);
+            for n in 0..BC {
+                self.q[n][j] = q[n];
+            }
+        }
+    }
+
+    /// The penalty objective's values of the samples (action penalization).
+    pub fn penalize(&mut self) {
+        for n in 0..BC {
+            for j in 0..M {
+                self.q_penalty[n][j] = -action_excess(&self.samples[j][n]);
+            }
+        }
+    }
+
+    /// Each state's terms of the dual at `eta`, of the penalty objective when `penalty`.
+    pub fn dual_rows(&mut self, eta: f64, penalty: bool) {
+        for n in 0..BC {
+            let row = if penalty {
+                &self.q_penalty[n]
+            } else {
+                &self.q[n]
+            };
+            self.dual[n] = dual_row(row, eta);
+        }
+    }
+
+    /// Adds the states' dual terms to `sums`, in state order.
+    pub fn add_dual(&self, sums: &mut DualSums) {
+        for r in &self.dual {
+            sums.add(r);
+        }
+    }
+
+    /// The weights at the solved temperatures, folded straight into each state's
+    /// [`SampleStats`] (the penalty objective's weights join the task's, so both pull on one
+    /// weighted likelihood), and each state's `KL(q || pi_old)`.
+    pub fn weigh(&mut self, eta: f32, eta_penalty: Option<f32>) {
+        for n in 0..BC {
+            let mut w = [0f32; M];
+            self.kl[n] = weights(
+                core::slice::from_ref(&self.q[n]),
+                eta,
+                core::slice::from_mut(&mut w),
+            ) as f32;
+            if let Some(eta_p) = eta_penalty {
+                let mut wp = [0f32; M];
+                weights(
+                    core::slice::from_ref(&self.q_penalty[n]),
+                    eta_p,
+                    core::slice::from_mut(&mut wp),
+                );
+                for j in 0..M {
+                    w[j] += wp[j];
+                }
+            }
+            let mut st = SampleStats::ZERO;
+            for j in 0..M {
+                st.add(w[j], &self.samples[j][n], &self.old[n].mu);
+            }
+            self.stats[n] = st;
+        }
+    }
+
+    /// Adds the chunk's samples to `sums`, states in order, samples in order within each.
+    pub fn add_samples(&self, sums: &mut SampleSums) {
+        for n in 0..BC {
+            for j in 0..M {
+                let v = self.q[n][j];
+                sums.q += v as f64;
+                sums.q_min = sums.q_min.min(v);
+                sums.q_max = sums.q_max.max(v);
+                sums.excess += action_excess(&self.samples[j][n]) as f64;
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -7,6 +7,14 @@
 //! `bootstrap = gamma^n prod(discounts)`, which [`nstep`] computes; a time-limit truncation
 //! keeps its discount of 1, so it still bootstraps.
 
+use bytemuck::Zeroable;
+
+use crate::batch::BatchChunk;
+use crate::estep::EStepRows;
+use crate::gaussian::Gaussian;
+use crate::nets::TargetNets;
+use crate::rng::{Rng, stream};
+
 /// Folds `rewards[k]`, `discounts[k]` (environment discount after step `k`: 0 at a terminal,
 /// 1 otherwise) of `n` consecutive steps into `(sum_k gamma^k prod_{i<k} d_i r_k,
 /// gamma^n prod_k d_k)`: the reward and bootstrap multiplier of one n-step transition.
@@ -56,6 +64,136 @@ pub fn retrace(
         out[j] = reward[j] + gamma * discount[j] * tail;
         let c = libm::expf(log_ratio[j].min(0.0));
         next = Some((out[j], q[j], c));
+    }
+}
+
+/// Policy evaluation on one batch chunk of `BC` rows: each row's target `y` from the target
+/// networks, with what Retrace reads along the row's sequence.
+#[derive(Zeroable)]
+pub(crate) struct TargetRows<const ACT: usize, const BC: usize, const L: usize, const N: usize> {
+    /// The target policy at the current position's next states (Retrace reuses it at the
+    /// next position, where they are the states).
+    next_pi: [Gaussian<ACT>; BC],
+    /// Next-action sample `j` of row `n` at `[j][n]`.
+    next_samples: [[[f32; ACT]; BC]; N],
+    /// `Q'(s_k, a_k)` of the actions taken (positions `1..len`).
+    q: [[f32; BC]; L],
+    /// `mean_j Q'(s_{k+1}, a'_j)`.
+    v_next: [[f32; BC]; L],
+    /// `ln pi(a_k | s_k) - ln b(a_k | s_k)` (positions `1..len`).
+    log_ratio: [[f32; BC]; L],
+    /// The target `y` of each row (Retrace's at position 0).
+    pub target: [f32; BC],
+    /// The critic's residual `Q(s_0, a_0) - y` of each row.
+    pub err: [f32; BC],
+}
+
+impl<const ACT: usize, const BC: usize, const L: usize, const N: usize> TargetRows<ACT, BC, L, N> {
+    /// The rows' targets: Retrace over their first `len` transitions (TD(0) expected SARSA
+    /// when `len` is 1), `N` target-policy actions per next state, row `n` drawing position
+    /// `k`'s from its own stream keyed by `seed` and its batch row `first_row + n`. Position
+    /// `k` needs the target policy and the critic's observation part at `s_{k+1}`; position
+    /// `k + 1` reuses both (its state is `s_{k+1}`) for its action's value and importance
+    /// weight. With `shared` (Acme's shared samples, where `len` is 1) the samples, their
+    /// values and the target policy at the next states become the E-step's.
+    pub fn compute<const OBS: usize, const M: usize>(
+        &mut self,
+        nets: &mut impl TargetNets<OBS, ACT, BC>,
+        b: &BatchChunk<BC, L, OBS, ACT>,
+        len: usize,
+        seed: u64,
+        first_row: usize,
+        mut shared: Option<&mut EStepRows<ACT, BC, M>>,
+    ) {
+        for k in 0..len {
+            if k > 0 {
+                // s_k is the previous position's next state: the target policy there is
+                // still in `next_pi`, the critic's observation part in `nets`.
+                let q = nets.values(&b.action[k]);
+                for n in 0..BC {
+                    self.q[k][n] = q[n];
+                    self.log_ratio[k][n] =
+                        self.next_pi[n].log_prob(&b.action[k][n]) - b.behaviour_log_prob[k][n];
+                }
+            }
+            nets.policy_at(&b.next_obs[k], &mut self.next_pi);
+            for n in 0..BC {
+                let mut z = [[0f32; ACT]; N];
+                Rng::for_stream(
+                    seed,
+                    stream::NEXT_ACTIONS + k as u32,
+                    (first_row + n) as u32,
+                )
+                .fill_normal(z.as_flattened_mut());
+                for j in 0..N {
+                    self.next_pi[n].transform(&z[j], &mut self.next_samples[j][n]);
+                }
+            }
+            let mut v = [0f32; BC];
+            for j in 0..N {
+                let q = nets.values(&self.next_samples[j]);
+                for n in 0..BC {
+                    v[n] += q[n];
+                }
+                if let Some(e) = shared.as_deref_mut().filter(|_| j < M) {
+                    for n in 0..BC {
+                        e.q[n][j] = q[n];
+                        e.samples[j][n] = self.next_samples[j][n];
+                    }
+                }
+            }
+            for n in 0..BC {
+                self.v_next[k][n] = v[n] / N as f32;
+            }
+        }
+        if let Some(e) = shared {
+            e.old = self.next_pi;
+        }
+        self.retrace_rows(b, len);
+    }
+
+    /// Each row's Retrace target at position 0 from the values gathered along its sequence.
+    fn retrace_rows<const OBS: usize>(&mut self, b: &BatchChunk<BC, L, OBS, ACT>, len: usize) {
+        let (mut q, mut v, mut r, mut d, mut lr, mut out) = (
+            [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L],
+        );
+        for n in 0..BC {
+            for k in 0..len {
+                q[k] = self.q[k][n];
+                v[k] = self.v_next[k][n];
+                r[k] = b.reward[k][n];
+                d[k] = b.bootstrap[k][n];
+                lr[k] = self.log_ratio[k][n];
+            }
+            // The bootstrap multipliers already hold gamma times the discounts.
+            retrace(
+                &q[..len],
+                &v[..len],
+                &r[..len],
+                &d[..len],
+                &lr[..len],
+                1.0,
+                &mut out[..len],
+            );
+            self.target[n] = out[0];
+        }
+    }
+
+    /// The critic's residuals `err = Q - y` for its values `q` at the batch's own actions,
+    /// and the loss gradient `dq = err / B` (`inv_b = 1 / B`) of `0.5 mean (Q - y)^2`.
+    pub fn residuals(&mut self, q: &[[f32; 1]; BC], inv_b: f32, dq: &mut [[f32; 1]; BC]) {
+        for n in 0..BC {
+            self.err[n] = q[n][0] - self.target[n];
+            dq[n][0] = self.err[n] * inv_b;
+        }
+    }
+
+    /// Adds the rows' `0.5 err^2` to `loss` and their targets to `targets`, in row order.
+    pub fn add_loss(&self, loss: &mut f32, targets: &mut f32) {
+        for n in 0..BC {
+            *loss += 0.5 * self.err[n] * self.err[n];
+            *targets += self.target[n];
+        }
     }
 }
 

@@ -3,10 +3,10 @@
 //! The network's head outputs a mean (`A` values) and the lower triangle of `L` (`T = A(A+1)/2`
 //! values, row by row: `(0,0), (1,0), (1,1), (2,0), ...`). The diagonal goes through a softplus
 //! plus a floor so `L` stays invertible; `Sigma = L L^T`. Every density and divergence goes
-//! through triangular solves, never an explicit inverse (ALGORITHM-NOTES.md, item 6).
+//! through triangular solves, never an explicit inverse (`docs/algorithm.md`, "The policy").
 //!
-//! KL(old || new) splits exactly into a mean part and a covariance part (the report swaps
-//! their names, ALGORITHM-NOTES.md item 1):
+//! KL(old || new) splits exactly into a mean part and a covariance part (the replication report
+//! swaps their names: `docs/algorithm.md`, "Where the replication report is wrong"):
 //! - mean part `0.5 (mu - mu_old)^T Sigma^-1 (mu - mu_old)`;
 //! - covariance part `0.5 (tr(Sigma^-1 Sigma_old) - A + ln det Sigma - ln det Sigma_old)`.
 //!

@@ -2,14 +2,16 @@
 //! robots: `#![no_std]`, no allocator, fixed sizes, bit-deterministic.
 //!
 //! The paper's concepts are the modules: [`gaussian`] (the policy's full-covariance
-//! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers and, optionally for the
-//! critic, a [`layer_norm`]; the policy's input goes through [`obs_norm`], its mean through
-//! [`squash`]),
-//! [`adam`], [`replay`] and [`rng`]; the algorithm's steps are [`evaluation`] (policy
-//! evaluation targets), [`estep`] and [`mstep`], composed by [`learner`], which spreads its
-//! work over threads through [`parallel`] with the same bits for any thread count. Every routine writes into buffers owned by the caller,
-//! so nothing is allocated after construction; big state is created zeroed in place (on the
-//! host with `bytemuck::zeroed_box`, on firmware in a static) and initialised with `init`.
+//! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers and,
+//! optionally for the critic, a [`layer_norm`]; the policy's input goes through [`obs_norm`],
+//! its mean through [`squash`]), [`adam`], [`replay`] (which fills a [`batch`]) and [`rng`];
+//! the algorithm's steps are [`evaluation`] (policy evaluation targets), [`estep`] and
+//! [`mstep`], each with its per-row work on a batch chunk beside its maths, composed by
+//! [`learner`], which spreads the work over threads through [`parallel`] with the same bits
+//! for any thread count. `docs/algorithm.md` derives what these modules compute. Every routine
+//! writes into buffers owned by the caller, so nothing is allocated after construction; big
+//! state is created zeroed in place (on the host with `bytemuck::zeroed_box`, on firmware in a
+//! static) and initialised with `init`.
 //!
 //! The `train` feature (on by default) holds everything only training needs: backward passes,
 //! tapes, the critic, Adam, the replay, the E- and M-steps and the learner. Firmware builds with
@@ -20,7 +22,7 @@
 #![no_std]
 #![deny(missing_docs)]
 // The exceptions: `linear::mul_add`, which calls the FMA instruction when the build enables it
-// (a register-only intrinsic), and `wide`, the 512-bit kernel chosen at run time.
+// (a register-only intrinsic), and `linear::wide`, the 512-bit kernels chosen at run time.
 #![deny(unsafe_code)]
 #![allow(clippy::needless_range_loop)]
 
@@ -29,6 +31,8 @@ pub mod actor;
 pub mod adam;
 #[cfg(feature = "train")]
 pub mod agent;
+#[cfg(feature = "train")]
+pub mod batch;
 #[cfg(feature = "train")]
 pub mod config;
 #[cfg(feature = "train")]
@@ -46,6 +50,8 @@ pub mod learner;
 pub mod linear;
 #[cfg(feature = "train")]
 pub mod mstep;
+#[cfg(feature = "train")]
+mod nets;
 pub mod obs_norm;
 #[cfg(feature = "train")]
 pub mod parallel;
@@ -56,7 +62,5 @@ pub mod rng;
 #[cfg(feature = "train")]
 pub mod selfcheck;
 pub mod squash;
-#[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-pub mod wide;
 
 pub use bytemuck;

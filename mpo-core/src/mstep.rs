@@ -1,5 +1,6 @@
-//! The M-step (paper eq. 9-10, with the decoupled constraints of ALGORITHM-NOTES.md item 1):
-//! fit the parametric policy to the E-step's weighted samples under KL trust regions.
+//! The M-step (paper eq. 9-10, with the decoupled constraints derived in `docs/algorithm.md`,
+//! "M-step"): fit the parametric policy to the E-step's weighted samples under KL trust
+//! regions.
 //!
 //! Per state, with `pi_old` the target policy, `pi = N(mu, L L^T)` the online one and the
 //! weighted samples summarised in [`SampleStats`], the loss is
@@ -13,19 +14,49 @@
 //! on `alpha (eps - KL)` with the KLs held constant. [`state_gradient`] is one state's share:
 //! loss terms, statistics and the gradient with respect to the head's raw outputs.
 
-use crate::adam::AdamConfig;
+use bytemuck::Zeroable;
+
+use crate::adam::{AdamConfig, AdamState};
 use crate::config::MpoConfig;
 use crate::gaussian::{
     Gaussian, GaussianGrad, SampleStats, head_backward, kl_per_dim_grad, weighted_log_prob_cov,
     weighted_log_prob_mean,
 };
-use crate::learner::Duals;
 
 /// Clamp of `ln alpha` (Acme clamps the duals below at `exp(-18)`).
 pub const LOG_ALPHA_MAX: f32 = 18.0;
 
+/// The M-step multipliers (log parameterisation) with their Adam state, and the E-step's
+/// temperatures: every dual variable an update carries to the next.
+#[derive(Clone, Copy, Debug, PartialEq, Zeroable)]
+pub struct Duals<const ACT: usize> {
+    /// E-step temperature `eta*` of the last update (the warm start of the next).
+    pub eta: f32,
+    /// Temperature of the action-penalty objective (with action penalization).
+    pub eta_penalty: f32,
+    /// `alpha_mu = exp(raw)` per dimension (all equal without per-dimension KL).
+    pub alpha_mean_raw: [f32; ACT],
+    /// `alpha_Sigma = exp(raw)` per dimension.
+    pub alpha_cov_raw: [f32; ACT],
+    /// Adam moments of the raw multipliers.
+    pub moments: [[f32; ACT]; 4],
+    /// Adam state of the multipliers.
+    pub opt: AdamState,
+}
+
+impl<const ACT: usize> Duals<ACT> {
+    /// `alpha_mu` per dimension.
+    pub fn alpha_mean(&self) -> [f32; ACT] {
+        self.alpha_mean_raw.map(libm::expf)
+    }
+    /// `alpha_Sigma` per dimension.
+    pub fn alpha_cov(&self) -> [f32; ACT] {
+        self.alpha_cov_raw.map(libm::expf)
+    }
+}
+
 /// One state's share of the M-step loss.
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Zeroable)]
 pub struct StateTerms<const A: usize> {
     /// `KL_mu` by dimension.
     pub kl_mean: [f32; A],
@@ -135,5 +166,123 @@ pub fn update_multipliers<const A: usize>(
         .chain(d.alpha_cov_raw.iter_mut())
     {
         *r = r.clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
+    }
+}
+
+/// The M-step on one batch chunk of `BC` states: each state's loss terms and the gradient
+/// with respect to the online actor's raw head outputs.
+#[derive(Zeroable)]
+pub(crate) struct MStepRows<const ACT: usize, const TRI: usize, const BC: usize> {
+    /// Gradient at the mean head's outputs (squashed until the actor's `squash_backward`).
+    pub d_mean: [[f32; ACT]; BC],
+    /// Gradient at the Cholesky head's raw outputs.
+    pub d_chol: [[f32; TRI]; BC],
+    /// Each state's loss terms.
+    pub terms: [StateTerms<ACT>; BC],
+}
+
+/// The per-state factors of the M-step loss in one update: `1/B` and the multipliers over
+/// `B`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LossScale<const ACT: usize> {
+    /// `1/B`.
+    pub inv_b: f32,
+    /// `alpha_mu / B` per dimension.
+    pub mean: [f32; ACT],
+    /// `alpha_Sigma / B` per dimension.
+    pub cov: [f32; ACT],
+}
+
+impl<const ACT: usize> LossScale<ACT> {
+    /// The factors for a batch of `b` states under the multipliers `d`.
+    pub fn new(d: &Duals<ACT>, b: usize) -> Self {
+        let inv_b = 1.0 / b as f32;
+        Self {
+            inv_b,
+            mean: d.alpha_mean().map(|a| a * inv_b),
+            cov: d.alpha_cov().map(|a| a * inv_b),
+        }
+    }
+}
+
+/// Sums of [`StateTerms`] over a batch, added in batch order.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct TermSums<const ACT: usize> {
+    /// Batch-mean `KL_mu` by dimension.
+    pub kl_mean: [f32; ACT],
+    /// Batch-mean `KL_Sigma` by dimension.
+    pub kl_cov: [f32; ACT],
+    /// The weighted negative log-likelihood.
+    pub nll: f32,
+    /// Sum of the means.
+    pub mu: f32,
+    /// Sum of `|mu|`.
+    pub mu_abs: f32,
+    /// Sum of the standard deviations.
+    pub std: f32,
+    /// Smallest standard deviation.
+    pub std_min: f32,
+    /// Largest standard deviation.
+    pub std_max: f32,
+}
+
+impl<const ACT: usize> Default for TermSums<ACT> {
+    fn default() -> Self {
+        Self {
+            kl_mean: [0.0; ACT],
+            kl_cov: [0.0; ACT],
+            nll: 0.0,
+            mu: 0.0,
+            mu_abs: 0.0,
+            std: 0.0,
+            std_min: f32::INFINITY,
+            std_max: 0.0,
+        }
+    }
+}
+
+impl<const ACT: usize, const TRI: usize, const BC: usize> MStepRows<ACT, TRI, BC> {
+    /// Each state's [`state_gradient`] given the online policy's head outputs `mean`, `chol`,
+    /// the target policy `old` and the E-step's weighted samples `stats` there.
+    pub fn gradients(
+        &mut self,
+        old: &[Gaussian<ACT>; BC],
+        stats: &[SampleStats<ACT>; BC],
+        mean: &[[f32; ACT]; BC],
+        chol: &[[f32; TRI]; BC],
+        scale: &LossScale<ACT>,
+        std_floor: f32,
+    ) {
+        for n in 0..BC {
+            self.terms[n] = state_gradient(
+                &old[n],
+                &mean[n],
+                &chol[n],
+                &stats[n],
+                scale.inv_b,
+                &scale.mean,
+                &scale.cov,
+                std_floor,
+                &mut self.d_mean[n],
+                &mut self.d_chol[n],
+            );
+        }
+    }
+
+    /// Adds the states' terms to `sums` in state order (KLs scaled by `inv_b`, so the sums are
+    /// batch means).
+    pub fn add_terms(&self, inv_b: f32, sums: &mut TermSums<ACT>) {
+        for t in &self.terms {
+            for k in 0..ACT {
+                sums.kl_mean[k] += t.kl_mean[k] * inv_b;
+                sums.kl_cov[k] += t.kl_cov[k] * inv_b;
+                sums.mu += t.mu[k];
+                sums.mu_abs += t.mu[k].abs();
+                sums.std += t.std[k];
+                sums.std_min = sums.std_min.min(t.std[k]);
+                sums.std_max = sums.std_max.max(t.std[k]);
+            }
+            sums.nll += t.nll;
+        }
     }
 }

@@ -6,7 +6,7 @@
 
 use bytemuck::Zeroable;
 
-use crate::learner::BatchChunk;
+use crate::batch::BatchChunk;
 use crate::rng::Rng;
 
 /// The longest n-step transition [`Replay::fill_batch`] folds.
@@ -666,10 +666,13 @@ mod tests {
         r.push(&t(7.0));
         assert_eq!((r.len(), r.get(0)), (1, t(7.0)));
         assert_eq!(r.counters().head, 1, "pushes start again at slot 0");
-        // Errors say what is wrong.
+        // Errors say what is wrong, each in its own words.
         use std::string::ToString;
         assert!(InvalidCounters.to_string().contains("counters"));
         assert!(SampleError::NotEnoughData.to_string().contains("too few"));
-        assert!(!SampleError::NoSequence.to_string().is_empty());
+        assert_eq!(
+            SampleError::NoSequence.to_string(),
+            "no single-episode sequence of that length found"
+        );
     }
 }

@@ -6,6 +6,15 @@
 use rand_core::{Rng as _, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 
+/// The tags of the learner's per-row random streams ([`Rng::for_stream`]), in one
+/// list so no two uses share a stream.
+pub mod stream {
+    /// The E-step's `M` samples at a row's state.
+    pub const ESTEP: u32 = 0;
+    /// The `N` next-action samples of sequence position `k` are stream `NEXT_ACTIONS + k`.
+    pub const NEXT_ACTIONS: u32 = 1;
+}
+
 /// Seeded random source with the draws the algorithm needs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Rng {

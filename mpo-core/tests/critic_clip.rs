@@ -5,8 +5,9 @@
 
 #![allow(clippy::needless_range_loop)]
 
+use mpo_core::batch::BatchChunk;
 use mpo_core::config::MpoConfig;
-use mpo_core::learner::{BatchChunk, Learner};
+use mpo_core::learner::Learner;
 use mpo_core::params::fingerprint;
 use mpo_core::rng::Rng;
 

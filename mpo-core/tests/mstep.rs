@@ -36,7 +36,7 @@ fn best(s: &[f32; OBS]) -> [f32; ACT] {
 /// Fills position 0 of every row with a contextual bandit: reward `-|a - f(s)|^2`, terminal.
 /// Works for any chunking of a 64-row batch.
 fn fill_bandit<const BC2: usize, const C2: usize>(
-    batch: &mut [mpo_core::learner::BatchChunk<BC2, SEQ, OBS, ACT>; C2],
+    batch: &mut [mpo_core::batch::BatchChunk<BC2, SEQ, OBS, ACT>; C2],
     rng: &mut Rng,
 ) {
     for n in 0..BC2 * C2 {
@@ -198,9 +198,8 @@ fn multipliers_rise_while_the_kl_exceeds_its_bound_and_fall_below_it() {
 
 /// A covariance bound a thousand times tighter than the report's is held at its own scale.
 /// How tight a bound an M-step can hold is limited by its optimiser: Adam moves each parameter
-/// by about `lr` per step whatever the gradient, so with the report's `lr = 3e-4` the measured
-/// floor is near `1e-7` (this test, measured: 1.2 x the bound at 1e-7, 5.6 x at 1e-8 and 48 x
-/// at 1e-9; with `lr = 3e-3`, 3.2 x at 1e-6).
+/// by about `lr` per step whatever the gradient, so with the report's `lr = 3e-4` the floor
+/// is near `1e-7` (the ratios this test measured at other bounds: docs/core.md, "Proofs").
 #[test]
 fn tiny_covariance_bound_is_met_relative_to_itself() {
     let eps = 1e-7f32;
@@ -639,7 +638,7 @@ fn multipliers_written_out(
 /// gradient's sign whatever its size).
 #[test]
 fn multiplier_steps_equal_the_optimiser_written_out() {
-    use mpo_core::learner::Duals;
+    use mpo_core::mstep::Duals;
     use mpo_core::mstep::update_multipliers;
     let (eps_mean, eps_cov) = (0.01f32, 1e-4f32);
     // Dimension 0: 0.8 of the whole bound (above eps / 2); dimension 1: 0.05 of it.

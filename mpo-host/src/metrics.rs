@@ -9,62 +9,13 @@ use std::path::Path;
 use mpo_core::learner::UpdateStats;
 use serde::{Deserialize, Serialize};
 
-/// Names of the learner statistics, in column order.
-pub const STAT_NAMES: [&str; 24] = [
-    "critic_loss",
-    "target_mean",
-    "q_mean",
-    "q_min",
-    "q_max",
-    "eta",
-    "estep_kl",
-    "estep_iterations",
-    "eta_penalty",
-    "action_excess",
-    "alpha_mean",
-    "alpha_cov",
-    "kl_mean",
-    "kl_cov",
-    "kl_mean_rel",
-    "kl_cov_rel",
-    "policy_nll",
-    "actor_grad_norm",
-    "critic_grad_norm",
-    "mu_mean",
-    "mu_abs_mean",
-    "std_mean",
-    "std_min",
-    "std_max",
-];
+/// Names of the learner statistics, in column order: the core's one list of them, so a name
+/// always labels its own field's value.
+pub const STAT_NAMES: [&str; UpdateStats::COUNT] = UpdateStats::NAMES;
 
 /// The statistics as numbers in [`STAT_NAMES`] order.
-pub fn stat_values(s: &UpdateStats) -> [f64; 24] {
-    [
-        s.critic_loss as f64,
-        s.target_mean as f64,
-        s.q_mean as f64,
-        s.q_min as f64,
-        s.q_max as f64,
-        s.eta as f64,
-        s.estep_kl as f64,
-        s.estep_iterations as f64,
-        s.eta_penalty as f64,
-        s.action_excess as f64,
-        s.alpha_mean as f64,
-        s.alpha_cov as f64,
-        s.kl_mean as f64,
-        s.kl_cov as f64,
-        s.kl_mean_rel as f64,
-        s.kl_cov_rel as f64,
-        s.policy_nll as f64,
-        s.actor_grad_norm as f64,
-        s.critic_grad_norm as f64,
-        s.mu_mean as f64,
-        s.mu_abs_mean as f64,
-        s.std_mean as f64,
-        s.std_min as f64,
-        s.std_max as f64,
-    ]
+pub fn stat_values(s: &UpdateStats) -> [f64; UpdateStats::COUNT] {
+    s.values()
 }
 
 /// The first non-finite statistic, if any.

@@ -174,10 +174,9 @@ impl MpoSettings {
         clip_critic_actions: false,
     };
 
-    /// The learner's configuration (one `f64 -> f32` rounding per field).
-    // The trailing `..REPORT` keeps this compiling if the core gains a field (it then takes
-    // the core's default until it is added here).
-    #[allow(clippy::needless_update)]
+    /// The learner's configuration (one `f64 -> f32` rounding per field). Every field is
+    /// written out, with no `..` default: a field the core gains fails to compile here until
+    /// the host maps it to a setting.
     pub fn to_config(&self) -> MpoConfig {
         MpoConfig {
             eps_eta: self.eps_eta as f32,
@@ -211,7 +210,6 @@ impl MpoSettings {
             obs_norm_interval: self.obs_norm_interval,
             tanh_mean: self.tanh_mean,
             clip_critic_actions: self.clip_critic_actions,
-            ..MpoConfig::REPORT
         }
     }
 }

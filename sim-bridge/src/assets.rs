@@ -14,10 +14,7 @@ use std::path::PathBuf;
 use mujoco_rs::prelude::MjModel;
 use mujoco_rs::wrappers::mj_auxiliary::MjVfs;
 
-use crate::error::SimError;
-
-/// Overrides the directory that holds `cartpole.xml`, ..., `common/materials.xml`.
-pub const SUITE_DIR_VAR: &str = "SIM_BRIDGE_SUITE_DIR";
+use crate::error::{SUITE_DIR_VAR, SimError};
 
 /// The include files of the suite models, as the models name them.
 const COMMON_FILES: [&str; 3] = ["materials.xml", "skybox.xml", "visual.xml"];

@@ -5,17 +5,25 @@ use std::path::PathBuf;
 /// The command that fetches MuJoCo and the Control Suite models.
 pub const SETUP_COMMAND: &str = "scripts/setup-mujoco";
 
+/// The environment variable that overrides the directory holding `cartpole.xml`, ...,
+/// `common/materials.xml` (read by `assets::suite_dir`; named here, beside the setup command,
+/// because the errors tell the user about both).
+pub const SUITE_DIR_VAR: &str = "SIM_BRIDGE_SUITE_DIR";
+
 /// Everything that can go wrong when making or stepping an environment.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
-    #[error("unknown task '{task}'; valid tasks: {}", crate::TASKS.join(", "))]
-    UnknownTask { task: String },
+    #[error("unknown task '{task}'; valid tasks: {}", valid.join(", "))]
+    UnknownTask {
+        task: String,
+        valid: &'static [&'static str],
+    },
 
     #[error(
         "the Control Suite model files are missing: {} not found; run `{SETUP_COMMAND}` from the \
          repository root (or point {} at a directory holding dm_control's suite/*.xml)",
         path.display(),
-        crate::assets::SUITE_DIR_VAR
+        SUITE_DIR_VAR
     )]
     MissingAssets { path: PathBuf },
 

@@ -41,7 +41,7 @@ mod task;
 pub mod taskfile;
 
 pub use env::SuiteEnv;
-pub use error::{SETUP_COMMAND, SimError};
+pub use error::{SETUP_COMMAND, SUITE_DIR_VAR, SimError};
 pub use taskfile::{Origin, TaskDef};
 
 /// The fixed shape of a task.

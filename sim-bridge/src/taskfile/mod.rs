@@ -92,6 +92,7 @@ impl TaskDef {
                 .find(|(n, _)| *n == name)
                 .ok_or_else(|| SimError::UnknownTask {
                     task: name.to_string(),
+                    valid: BUILTIN_NAMES,
                 })?;
         Self::from_text(text, name, Origin::Builtin, &builtin_dir())
     }

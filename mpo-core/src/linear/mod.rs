@@ -21,50 +21,20 @@
 //! outputs up to the last multiple of 16 to the `wide` module's 512-bit forms (same order, so
 //! the same bits) and keep the rest.
 
+mod order;
+mod tiles;
+#[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
+pub mod wide;
+
+pub use order::{Start, mul_add, relu_one};
+
 use bytemuck::Zeroable;
 
 use crate::params::Params;
 use crate::rng::Rng;
-
-/// Floats per AVX2 register: the kernels' unit of output width.
-const LANES: usize = 8;
-/// Samples per tile of the batch forward kernel: 4 x 3 accumulators, 3 weight registers and
-/// one broadcast fill the 16 AVX2 registers (measured best of 4x16, 5x16, 6x16, 8x8, 3x32,
-/// 2x32 on this machine).
-const TILE_N: usize = 4;
-/// Samples per tile of the narrow-output kernel.
-const TILE_N_NARROW: usize = 8;
-/// Input rows per tile of the weight-gradient kernel (same register budget).
 #[cfg(feature = "train")]
-const TILE_I: usize = 4;
-/// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
-/// enough to hide the FMA latency.
-const CHUNK_1: usize = 64;
-
-/// `a * b + c` with one rounding (IEEE 754 fusedMultiplyAdd).
-///
-/// On x86-64 builds with the `fma` target feature (the workspace's x86-64-v3 host target) this
-/// is the FMA instruction, which the compiler vectorises; elsewhere (the baseline target of the
-/// freestanding binaries, microcontrollers) it is `libm::fmaf`, correctly rounded in software
-/// or with the instruction when the CPU has one. Both give the same bits for the same inputs.
-#[inline(always)]
-pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-    #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-    {
-        use core::arch::x86_64::{_mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss};
-        // SAFETY: the `fma` target feature is enabled for the whole build (checked by the cfg
-        // above), so every CPU this binary may run on has the instruction; the intrinsics only
-        // touch registers.
-        #[allow(unsafe_code)]
-        unsafe {
-            _mm_cvtss_f32(_mm_fmadd_ss(_mm_set_ss(a), _mm_set_ss(b), _mm_set_ss(c)))
-        }
-    }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
-    {
-        libm::fmaf(a, b, c)
-    }
-}
+use tiles::weight_grad_from;
+use tiles::{accumulate_one, kernel_from};
 
 /// A dense layer `y = b + x W` with `I` inputs and `O` outputs.
 #[derive(Clone, Zeroable)]
@@ -141,29 +111,6 @@ impl<const I: usize, const O: usize> Linear<I, O> {
     }
 }
 
-/// Where each output's sum starts.
-#[derive(Clone, Copy)]
-pub enum Start<'a, const O: usize> {
-    /// From `y` itself (accumulate into it).
-    Y,
-    /// From one row for every sample (a bias).
-    Row(&'a [f32; O]),
-    /// From row `n` of the given rows for sample `n` (a precomputed partial sum).
-    Rows(&'a [[f32; O]]),
-}
-
-impl<const O: usize> Start<'_, O> {
-    /// The start values of sample `n` (`y` is the output, for [`Start::Y`]).
-    #[inline(always)]
-    pub(crate) fn row<'a>(&'a self, y: &'a [[f32; O]], n: usize) -> &'a [f32; O] {
-        match self {
-            Self::Y => &y[n],
-            Self::Row(b) => b,
-            Self::Rows(r) => &r[n],
-        }
-    }
-}
-
 /// `y[n] += x[n] W` for every row, each output summed in ascending input order.
 pub fn accumulate<const I: usize, const O: usize>(
     x: &[[f32; I]],
@@ -197,208 +144,14 @@ pub fn kernel<const I: usize, const O: usize, const RELU: bool>(
     #[allow(unused_mut)]
     let mut o0 = 0;
     #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-    if crate::wide::enabled() {
+    if wide::enabled() {
         // SAFETY: `enabled` is true only where the CPU and OS run AVX-512F code.
         #[allow(unsafe_code)]
         {
-            o0 = unsafe { crate::wide::kernel::<I, O, RELU>(x, w, start, y) };
+            o0 = unsafe { wide::kernel::<I, O, RELU>(x, w, start, y) };
         }
     }
     kernel_from::<I, O, RELU>(x, w, start, y, o0);
-}
-
-/// The 8-wide batch kernel for outputs `o0..O` (all of [`kernel`] but its dispatch).
-pub(crate) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
-    x: &[[f32; I]],
-    w: &[[f32; O]; I],
-    start: Start<'_, O>,
-    y: &mut [[f32; O]],
-    mut o0: usize,
-) {
-    while o0 + 3 * LANES <= O {
-        accumulate_strip::<I, O, 3, RELU>(x, w, start, y, o0);
-        o0 += 3 * LANES;
-    }
-    if o0 + 2 * LANES <= O {
-        accumulate_strip::<I, O, 2, RELU>(x, w, start, y, o0);
-        o0 += 2 * LANES;
-    }
-    if o0 + LANES <= O {
-        accumulate_strip::<I, O, 1, RELU>(x, w, start, y, o0);
-        o0 += LANES;
-    }
-    if o0 < O {
-        accumulate_narrow::<I, O, RELU>(x, w, start, y, o0);
-    }
-}
-
-/// Outputs `o0 .. o0 + 8 K` of every row: tiles of 4 samples, then single rows.
-#[inline(always)]
-fn accumulate_strip<const I: usize, const O: usize, const K: usize, const RELU: bool>(
-    x: &[[f32; I]],
-    w: &[[f32; O]; I],
-    start: Start<'_, O>,
-    y: &mut [[f32; O]],
-    o0: usize,
-) {
-    let mut n0 = 0;
-    while n0 + TILE_N <= x.len() {
-        let xs: &[[f32; I]; TILE_N] = x[n0..n0 + TILE_N].try_into().unwrap();
-        accumulate_tile::<I, O, TILE_N, K, RELU>(xs, w, start, y, n0, o0);
-        n0 += TILE_N;
-    }
-    while n0 < x.len() {
-        let xs: &[[f32; I]; 1] = x[n0..n0 + 1].try_into().unwrap();
-        accumulate_tile::<I, O, 1, K, RELU>(xs, w, start, y, n0, o0);
-        n0 += 1;
-    }
-}
-
-/// `TN` samples from `n0` by `8 K` outputs from `o0`: the accumulators (`TN K` vectors) and
-/// the `K` weight vectors of the current input stay in registers while the inputs stream.
-/// Fixed-size rows, so the compiler checks bounds once per tile, not per input.
-#[inline(always)]
-fn accumulate_tile<
-    const I: usize,
-    const O: usize,
-    const TN: usize,
-    const K: usize,
-    const RELU: bool,
->(
-    x: &[[f32; I]; TN],
-    w: &[[f32; O]; I],
-    start: Start<'_, O>,
-    y: &mut [[f32; O]],
-    n0: usize,
-    o0: usize,
-) {
-    let mut acc = [[[0f32; LANES]; K]; TN];
-    for s in 0..TN {
-        let src = start.row(y, n0 + s);
-        for k in 0..K {
-            acc[s][k].copy_from_slice(&src[o0 + LANES * k..o0 + LANES * (k + 1)]);
-        }
-    }
-    for i in 0..I {
-        let mut wr = [[0f32; LANES]; K];
-        for k in 0..K {
-            wr[k] = w[i][o0 + LANES * k..o0 + LANES * (k + 1)]
-                .try_into()
-                .unwrap();
-        }
-        for s in 0..TN {
-            let xs = x[s][i];
-            for k in 0..K {
-                for l in 0..LANES {
-                    acc[s][k][l] = mul_add(xs, wr[k][l], acc[s][k][l]);
-                }
-            }
-        }
-    }
-    let ys: &mut [[f32; O]; TN] = (&mut y[n0..n0 + TN]).try_into().unwrap();
-    for s in 0..TN {
-        for k in 0..K {
-            for l in 0..LANES {
-                let v = acc[s][k][l];
-                ys[s][o0 + LANES * k + l] = if RELU { relu_one(v) } else { v };
-            }
-        }
-    }
-}
-
-/// Outputs `o0..O` (fewer than 8) for every row: eight samples at a time keep eight
-/// independent accumulator vectors busy, which a single narrow row could not.
-fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
-    x: &[[f32; I]],
-    w: &[[f32; O]; I],
-    start: Start<'_, O>,
-    y: &mut [[f32; O]],
-    o0: usize,
-) {
-    let width = O - o0;
-    let mut n0 = 0;
-    while n0 < x.len() {
-        let tn = TILE_N_NARROW.min(x.len() - n0);
-        let mut acc = [[0f32; LANES]; TILE_N_NARROW];
-        for s in 0..tn {
-            acc[s][..width].copy_from_slice(&start.row(y, n0 + s)[o0..]);
-        }
-        for i in 0..I {
-            let wr = &w[i][o0..];
-            for s in 0..tn {
-                let xs = x[n0 + s][i];
-                for (a, wv) in acc[s][..width].iter_mut().zip(wr) {
-                    *a = mul_add(xs, *wv, *a);
-                }
-            }
-        }
-        for s in 0..tn {
-            for l in 0..width {
-                let v = acc[s][l];
-                y[n0 + s][o0 + l] = if RELU { relu_one(v) } else { v };
-            }
-        }
-        n0 += tn;
-    }
-}
-
-/// One sample: output chunks of 64 accumulators (eight registers, enough to hide the FMA
-/// latency), inputs streaming; the rest of the outputs in chunks of 8, then singly.
-///
-/// Inputs that are exactly zero are skipped: a ReLU layer's inactive units, about half of a
-/// hidden layer, so the weight rows read (the single state's cost: they stream from L2) drop by
-/// about as much. Skipping is exact: `fma(±0, w, acc)` is `acc` bit for bit for finite `w` unless
-/// `acc` is `-0.0`, and a chain can only be `-0.0` if it starts at a bias of exactly `-0.0`
-/// (an exact cancellation rounds to `+0.0`); a start value of `-0.0` turns skipping off for
-/// the layer. So the result equals the batch kernel's bit for bit for every finite weight.
-#[inline(always)]
-fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
-    x: &[f32; I],
-    w: &[[f32; O]; I],
-    start: Start<'_, O>,
-    y: &mut [f32; O],
-) {
-    let mut init = *start.row(core::slice::from_ref(y), 0);
-    // Indices of the inputs that contribute, written without branches (`n` advances only
-    // past a non-zero input), so random sparsity costs no mispredictions.
-    let skip = !init.iter().any(|v| v.to_bits() == (-0.0f32).to_bits());
-    let mut nz = [0u32; I];
-    let mut n = 0;
-    if O >= CHUNK_1 {
-        for (i, &xi) in x.iter().enumerate() {
-            nz[n] = i as u32;
-            n += (!skip || xi != 0.0) as usize;
-        }
-    }
-    let nz = &nz[..n];
-    let mut o0 = 0;
-    while o0 + CHUNK_1 <= O {
-        let mut acc: [f32; CHUNK_1] = init[o0..o0 + CHUNK_1].try_into().unwrap();
-        for &i in nz {
-            let i = i as usize;
-            let wr: &[f32; CHUNK_1] = w[i][o0..o0 + CHUNK_1].try_into().unwrap();
-            let xi = x[i];
-            for l in 0..CHUNK_1 {
-                acc[l] = mul_add(xi, wr[l], acc[l]);
-            }
-        }
-        init[o0..o0 + CHUNK_1].copy_from_slice(&acc);
-        o0 += CHUNK_1;
-    }
-    if o0 < O {
-        // The rest of the outputs (a narrow head) together: one chain per output. Every
-        // input (exactly the same as skipping zeros, above): a narrow head's weights are few
-        // and stay in L1, and the full loop has a constant trip count the compiler unrolls.
-        for i in 0..I {
-            let xi = x[i];
-            for o in o0..O {
-                init[o] = mul_add(xi, w[i][o], init[o]);
-            }
-        }
-    }
-    for o in 0..O {
-        y[o] = if RELU { relu_one(init[o]) } else { init[o] };
-    }
 }
 
 #[cfg(feature = "train")]
@@ -430,135 +183,14 @@ pub fn weight_grad_chunks<const I: usize, const O: usize>(
     #[allow(unused_mut)]
     let mut o0 = 0;
     #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-    if crate::wide::enabled() {
+    if wide::enabled() {
         // SAFETY: `enabled` is true only where the CPU and OS run AVX-512F code.
         #[allow(unsafe_code)]
         {
-            o0 = unsafe { crate::wide::weight_grad::<I, O>(x, dy, i0, gw) };
+            o0 = unsafe { wide::weight_grad::<I, O>(x, dy, i0, gw) };
         }
     }
     weight_grad_from(x, dy, i0, gw, o0);
-}
-
-#[cfg(feature = "train")]
-/// The 8-wide weight gradient for columns `o0..O` (all of [`weight_grad_chunks`] but its
-/// dispatch and checks).
-pub(crate) fn weight_grad_from<const I: usize, const O: usize>(
-    x: &[&[[f32; I]]],
-    dy: &[&[[f32; O]]],
-    i0: usize,
-    gw: &mut [[f32; O]],
-    mut o0: usize,
-) {
-    while o0 + 3 * LANES <= O {
-        weight_grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
-        o0 += 3 * LANES;
-    }
-    if o0 + 2 * LANES <= O {
-        weight_grad_strip::<I, O, 2>(x, dy, i0, gw, o0);
-        o0 += 2 * LANES;
-    }
-    if o0 + LANES <= O {
-        weight_grad_strip::<I, O, 1>(x, dy, i0, gw, o0);
-        o0 += LANES;
-    }
-    if o0 < O {
-        weight_grad_narrow(x, dy, i0, gw, o0);
-    }
-}
-
-#[cfg(feature = "train")]
-/// Columns `o0 .. o0 + 8 K` of [`weight_grad_chunks`]: tiles of 4 input rows, then single
-/// rows.
-#[inline(always)]
-fn weight_grad_strip<const I: usize, const O: usize, const K: usize>(
-    x: &[&[[f32; I]]],
-    dy: &[&[[f32; O]]],
-    i0: usize,
-    gw: &mut [[f32; O]],
-    o0: usize,
-) {
-    let rows = gw.len();
-    let mut r = 0;
-    while r + TILE_I <= rows {
-        let acc = weight_grad_tile::<I, O, TILE_I, K>(x, dy, i0 + r, o0);
-        for t in 0..TILE_I {
-            for k in 0..K {
-                gw[r + t][o0 + LANES * k..o0 + LANES * (k + 1)].copy_from_slice(&acc[t][k]);
-            }
-        }
-        r += TILE_I;
-    }
-    while r < rows {
-        let acc = weight_grad_tile::<I, O, 1, K>(x, dy, i0 + r, o0);
-        for k in 0..K {
-            gw[r][o0 + LANES * k..o0 + LANES * (k + 1)].copy_from_slice(&acc[0][k]);
-        }
-        r += 1;
-    }
-}
-
-#[cfg(feature = "train")]
-/// `TI` input rows from `i` by `8 K` outputs from `o0` of the chunked weight gradient.
-#[inline(always)]
-fn weight_grad_tile<const I: usize, const O: usize, const TI: usize, const K: usize>(
-    x: &[&[[f32; I]]],
-    dy: &[&[[f32; O]]],
-    i: usize,
-    o0: usize,
-) -> [[[f32; LANES]; K]; TI] {
-    let mut acc = [[[0f32; LANES]; K]; TI];
-    for (xc, dc) in x.iter().zip(dy) {
-        for (xn, dn) in xc.iter().zip(dc.iter()) {
-            let mut d = [[0f32; LANES]; K];
-            for k in 0..K {
-                d[k] = dn[o0 + LANES * k..o0 + LANES * (k + 1)].try_into().unwrap();
-            }
-            let xs: &[f32; TI] = xn[i..i + TI].try_into().unwrap();
-            for t in 0..TI {
-                let xv = xs[t];
-                for k in 0..K {
-                    for l in 0..LANES {
-                        acc[t][k][l] = mul_add(xv, d[k][l], acc[t][k][l]);
-                    }
-                }
-            }
-        }
-    }
-    acc
-}
-
-#[cfg(feature = "train")]
-/// Columns `o0..O` (fewer than 8) of [`weight_grad_chunks`]: eight input rows at a time.
-fn weight_grad_narrow<const I: usize, const O: usize>(
-    x: &[&[[f32; I]]],
-    dy: &[&[[f32; O]]],
-    i0: usize,
-    gw: &mut [[f32; O]],
-    o0: usize,
-) {
-    const TI: usize = 8;
-    let width = O - o0;
-    let mut r = 0;
-    while r < gw.len() {
-        let ti = TI.min(gw.len() - r);
-        let mut acc = [[0f32; LANES]; TI];
-        for (xc, dc) in x.iter().zip(dy) {
-            for (xn, dn) in xc.iter().zip(dc.iter()) {
-                let d = &dn[o0..];
-                for k in 0..ti {
-                    let xk = xn[i0 + r + k];
-                    for (a, dv) in acc[k][..width].iter_mut().zip(d) {
-                        *a = mul_add(xk, *dv, *a);
-                    }
-                }
-            }
-        }
-        for k in 0..ti {
-            gw[r + k][o0..].copy_from_slice(&acc[k][..width]);
-        }
-        r += ti;
-    }
 }
 
 #[cfg(feature = "train")]
@@ -593,15 +225,6 @@ pub fn bias_grad_chunks<const O: usize>(dy: &[&[[f32; O]]], gb: &mut [f32; O]) {
             }
         }
     }
-}
-
-/// The ReLU of one value, defined for every input: `v` if `v > 0`, else `+0` (so `-0.0` and
-/// NaN give `+0`). Spelled out rather than `f32::max`, which may return either zero for
-/// `max(-0.0, 0.0)`: every kernel path (8-wide, 512-bit, single state, software FMA) must
-/// agree bit for bit.
-#[inline(always)]
-pub fn relu_one(v: f32) -> f32 {
-    if v > 0.0 { v } else { 0.0 }
 }
 
 /// `x = max(x, 0)` in place ([`relu_one`]).
@@ -733,25 +356,17 @@ mod tests {
         }
     }
 
-    /// The 512-bit kernel (`wide`, taken where the CPU has AVX-512F) equals the 8-wide one and
-    /// the reference order bit for bit: every start kind, with and without the fused ReLU,
-    /// pre-activations of both signed zeros, and sizes that leave 8-wide and narrow outputs
-    /// (118 = 2 x 48 + 16 + 6) and 8-, 4- and 1-sample tiles (13 rows). On a CPU without
-    /// AVX-512 both calls take the 8-wide path, which the test says on stderr.
-    #[test]
-    fn wide_kernel_equals_the_8_wide_kernel_bits() {
+    /// A batch forward `run(x, w, start, relu, y)` equals the reference order bit for bit:
+    /// every start kind, with and without the fused ReLU, pre-activations of both signed zeros,
+    /// and sizes that leave 8-wide and narrow outputs (118 = 2 x 48 + 16 + 6) and 8-, 4- and
+    /// 1-sample tiles (13 rows).
+    fn forward_matches_the_reference_order(
+        path: &str,
+        run: impl Fn(&[[f32; 21]], &[[f32; 118]; 21], Start<'_, 118>, bool, &mut [[f32; 118]]),
+    ) {
         const I: usize = 21;
         const O: usize = 118;
         const B: usize = 13;
-        #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-        let wide = crate::wide::enabled();
-        #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
-        let wide = false;
-        if !wide {
-            std::eprintln!(
-                "wide_kernel_equals_the_8_wide_kernel_bits: no AVX-512 on this CPU, only the 8-wide path ran"
-            );
-        }
         let mut l = layer::<I, O>(31);
         let mut x = [[0f32; I]; B];
         Rng::seed_from_u64(32).fill_normal(x.as_flattened_mut());
@@ -778,14 +393,8 @@ mod tests {
                 _ => Start::Rows(&rows),
             };
             for relu in [false, true] {
-                let (mut a, mut b) = (rows, rows);
-                if relu {
-                    kernel::<I, O, true>(&x, &l.w, start, &mut a);
-                    kernel_from::<I, O, true>(&x, &l.w, start, &mut b, 0);
-                } else {
-                    kernel::<I, O, false>(&x, &l.w, start, &mut a);
-                    kernel_from::<I, O, false>(&x, &l.w, start, &mut b, 0);
-                }
+                let mut y = rows;
+                run(&x, &l.w, start, relu, &mut y);
                 for n in 0..B {
                     let mut r = match kind {
                         1 => l.b,
@@ -799,12 +408,53 @@ mod tests {
                     for o in 0..O {
                         let r = if relu { relu_one(r[o]) } else { r[o] };
                         let at = format_args!("start {kind} relu {relu} n {n} o {o}");
-                        assert_eq!(a[n][o].to_bits(), b[n][o].to_bits(), "wide vs 8-wide, {at}");
-                        assert_eq!(b[n][o].to_bits(), r.to_bits(), "8-wide vs reference, {at}");
+                        assert_eq!(y[n][o].to_bits(), r.to_bits(), "{path} vs reference, {at}");
                     }
                 }
             }
         }
+    }
+
+    /// The 8-wide kernels (all of [`kernel`] where the 512-bit path is off) keep the order.
+    #[test]
+    fn tiled_kernel_matches_the_reference_order() {
+        forward_matches_the_reference_order("8-wide", |x, w, start, relu, y| {
+            if relu {
+                kernel_from::<21, 118, true>(x, w, start, y, 0);
+            } else {
+                kernel_from::<21, 118, false>(x, w, start, y, 0);
+            }
+        });
+    }
+
+    /// The 512-bit kernel, with the 8-wide ones for the outputs it leaves (what [`kernel`]
+    /// runs where AVX-512F is on), keeps the order. Compiled only where the CPU that built the
+    /// tests has AVX-512F (`mpo-core/build.rs` sets `mpo_avx512f`): elsewhere the 512-bit code
+    /// cannot run, so there is no test rather than one that passes without running it.
+    #[cfg(all(mpo_avx512f, target_arch = "x86_64", target_feature = "fma"))]
+    #[test]
+    fn wide_kernel_matches_the_reference_order() {
+        assert!(
+            wide::detected(),
+            "built on a CPU with AVX-512F, run on one without"
+        );
+        forward_matches_the_reference_order("512-bit", |x, w, start, relu, y| {
+            // SAFETY: the CPU has AVX-512F (asserted above).
+            #[allow(unsafe_code)]
+            let o0 = unsafe {
+                if relu {
+                    wide::kernel::<21, 118, true>(x, w, start, y)
+                } else {
+                    wide::kernel::<21, 118, false>(x, w, start, y)
+                }
+            };
+            assert_eq!(o0, 112, "the 512-bit kernel's share of 118 outputs");
+            if relu {
+                kernel_from::<21, 118, true>(x, w, start, y, o0);
+            } else {
+                kernel_from::<21, 118, false>(x, w, start, y, o0);
+            }
+        });
     }
 
     #[test]
@@ -865,12 +515,13 @@ mod tests {
         }
     }
 
-    /// The 512-bit weight gradient (where the CPU has AVX-512F) equals the 8-wide one and the
-    /// reference order bit for bit, on uneven chunks and row ranges that leave 8-row, single-row,
-    /// 8-wide and narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21). On a
-    /// CPU without AVX-512 both calls take the 8-wide path, which the test says on stderr.
-    #[test]
-    fn wide_weight_gradient_equals_the_8_wide_bits() {
+    /// A chunked weight gradient `run(chunks, dy_chunks, i0, rows)` equals the reference order
+    /// bit for bit, on uneven chunks and row ranges that leave 8-row, single-row, 8-wide and
+    /// narrow remainders (118 columns = 2 x 48 + 16 + 6; rows 0..11 and 11..21).
+    fn weight_gradient_matches_the_reference_order(
+        path: &str,
+        run: impl Fn(&[&[[f32; 21]]], &[&[[f32; 118]]], usize, &mut [[f32; 118]]),
+    ) {
         const I: usize = 21;
         const O: usize = 118;
         const B: usize = 13;
@@ -881,16 +532,9 @@ mod tests {
         rng.fill_normal(dy.as_flattened_mut());
         let xs: [&[[f32; I]]; 3] = [&x[..6], &x[6..7], &x[7..]];
         let ds: [&[[f32; O]]; 3] = [&dy[..6], &dy[6..7], &dy[7..]];
-        #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
-        if !crate::wide::enabled() {
-            std::eprintln!(
-                "wide_weight_gradient_equals_the_8_wide_bits: no AVX-512 on this CPU, only the 8-wide path ran"
-            );
-        }
-        let (mut a, mut b) = ([[0f32; O]; I], [[0f32; O]; I]);
+        let mut g = [[0f32; O]; I];
         for (i0, i1) in [(0, 11), (11, I)] {
-            weight_grad_chunks(&xs, &ds, i0, &mut a[i0..i1]);
-            weight_grad_from(&xs, &ds, i0, &mut b[i0..i1], 0);
+            run(&xs, &ds, i0, &mut g[i0..i1]);
         }
         for i in 0..I {
             for o in 0..O {
@@ -898,17 +542,37 @@ mod tests {
                 for n in 0..B {
                     r = libm::fmaf(x[n][i], dy[n][o], r);
                 }
-                assert_eq!(
-                    a[i][o].to_bits(),
-                    b[i][o].to_bits(),
-                    "wide vs 8-wide i {i} o {o}"
-                );
-                assert_eq!(
-                    b[i][o].to_bits(),
-                    r.to_bits(),
-                    "8-wide vs reference i {i} o {o}"
-                );
+                let (got, want) = (g[i][o].to_bits(), r.to_bits());
+                assert_eq!(got, want, "{path} vs reference i {i} o {o}");
             }
         }
+    }
+
+    /// The 8-wide weight gradient (all of [`weight_grad_chunks`] where the 512-bit path is
+    /// off) keeps the order.
+    #[test]
+    fn tiled_weight_gradient_matches_the_reference_order() {
+        weight_gradient_matches_the_reference_order("8-wide", |x, dy, i0, g| {
+            weight_grad_from(x, dy, i0, g, 0);
+        });
+    }
+
+    /// The 512-bit weight gradient, with the 8-wide one for the columns it leaves, keeps the
+    /// order; compiled only where the building CPU has AVX-512F, like
+    /// `wide_kernel_matches_the_reference_order`.
+    #[cfg(all(mpo_avx512f, target_arch = "x86_64", target_feature = "fma"))]
+    #[test]
+    fn wide_weight_gradient_matches_the_reference_order() {
+        assert!(
+            wide::detected(),
+            "built on a CPU with AVX-512F, run on one without"
+        );
+        weight_gradient_matches_the_reference_order("512-bit", |x, dy, i0, g| {
+            // SAFETY: the CPU has AVX-512F (asserted above).
+            #[allow(unsafe_code)]
+            let o0 = unsafe { wide::weight_grad::<21, 118>(x, dy, i0, g) };
+            assert_eq!(o0, 112, "the 512-bit gradient's share of 118 columns");
+            weight_grad_from(x, dy, i0, g, o0);
+        });
     }
 }

@@ -4,8 +4,8 @@
 //! The workspace builds for x86-64-v3 (AVX2), so [`crate::linear`]'s kernels are 8 floats wide.
 //! On a CPU with two 512-bit FMA pipes (Intel Xeon since Skylake-SP) a 16-wide fused
 //! multiply-add does twice the work per instruction: `cargo bench --bench kernels` measures
-//! both peaks (1.85x on the Xeon host of 2026-12-02). This module holds those kernels,
-//! chosen at run time ([`enabled`]), so one binary runs everywhere.
+//! both peaks (docs/core.md, "512-bit kernels on an AVX-512 CPU"). This module holds those
+//! kernels, chosen at run time ([`enabled`]), so one binary runs everywhere.
 //!
 //! **Same bits.** Every output is computed exactly as in [`crate::linear::kernel`]: its start
 //! value, then one fused multiply-add per input in ascending input order
@@ -30,7 +30,7 @@ use core::arch::x86_64::{
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
-use crate::linear::Start;
+use super::order::Start;
 
 /// Floats per 512-bit register.
 const W: usize = 16;
