@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 
 use sim_bridge::TaskDef;
 
-use super::{Error, open_checkpoint};
+use super::error::Error;
+use super::trained::open_checkpoint;
 use crate::checkpoint::{self, Meta, Verified};
 use crate::cli::TrainArgs;
 use crate::rows::{self, Row, RowError};

@@ -1,6 +1,6 @@
 //! `mpo controller`: the policy in its own process.
 
-use super::Error;
+use super::error::Error;
 use crate::cli::ControllerArgs;
 use crate::rows;
 

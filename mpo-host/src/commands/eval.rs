@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::Error;
+use super::error::Error;
 use crate::cli::EvalArgs;
 use crate::eval::{evaluate, mean_std};
 use crate::settings::SettingsError;
@@ -31,7 +31,7 @@ pub fn eval(args: &EvalArgs) -> Result<EvalSummary, Error> {
     if args.episodes == 0 {
         return Err(SettingsError::Invalid("--episodes must be at least 1".into()).into());
     }
-    let t = super::trained(&args.checkpoint)?;
+    let t = super::trained::trained(&args.checkpoint)?;
     let m = &t.v.meta;
     let seed = args.seed.unwrap_or(m.settings.seed);
     let returns = evaluate(t.policy.as_ref(), &t.task, seed, args.episodes)?;

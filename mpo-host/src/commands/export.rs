@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use serde::Serialize;
 
-use super::Error;
+use super::error::Error;
 use crate::cli::ExportArgs;
 
 /// What `mpo export` wrote.
@@ -28,7 +28,7 @@ pub struct ExportSummary {
 
 /// `mpo export`: the checkpoint's online policy as Rust source for the firmware.
 pub fn export(args: &ExportArgs) -> Result<ExportSummary, Error> {
-    let t = super::trained(&args.checkpoint)?;
+    let t = super::trained::trained(&args.checkpoint)?;
     let m = &t.v.meta;
     let origin = format!(
         "checkpoint {} ({} at {} environment steps, params_sha256 {})",

@@ -1,6 +1,6 @@
 //! `mpo plot`: learning curves of run directories, read from their metrics files.
 
-use super::Error;
+use super::error::Error;
 use crate::cli::PlotArgs;
 use crate::settings;
 

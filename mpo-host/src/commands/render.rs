@@ -1,12 +1,12 @@
 //! `mpo render`.
 
-use super::Error;
+use super::error::Error;
 use crate::cli::RenderArgs;
 use crate::render::{RenderOptions, RenderSummary};
 
 /// `mpo render`: the checkpoint's mean-action policy on its evaluation episodes, as pictures.
 pub fn render(args: &RenderArgs) -> Result<RenderSummary, Error> {
-    let t = super::trained(&args.checkpoint)?;
+    let t = super::trained::trained(&args.checkpoint)?;
     let opts = RenderOptions {
         episodes: args.episodes,
         seed: args.seed.unwrap_or(t.v.meta.settings.seed),

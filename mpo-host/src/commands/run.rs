@@ -3,7 +3,7 @@
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use super::Error;
+use super::error::Error;
 use crate::cli::RunArgs;
 use crate::link::{ControllerTarget, LinkOptions};
 use crate::run::{Limit, Pacing, RunRequest, RunSummary};
@@ -46,7 +46,7 @@ pub fn run(args: &RunArgs, interrupt: &AtomicBool) -> Result<RunSummary, Error> 
     };
     let link =
         LinkOptions::from_args(&args.link, default_deadline, args.realtime).map_err(invalid)?;
-    let t = super::trained(&args.checkpoint)?;
+    let t = super::trained::trained(&args.checkpoint)?;
     let m = &t.v.meta;
     let req = RunRequest {
         target: ControllerTarget::of(&m.settings),

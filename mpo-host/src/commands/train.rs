@@ -3,7 +3,7 @@
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use super::Error;
+use super::error::Error;
 use crate::cli::TrainArgs;
 use crate::link::LinkOptions;
 use crate::render::EvaluationStrips;
@@ -22,7 +22,7 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
     // Training through a controller is lockstep: a miss would make the run differ.
     let link = LinkOptions::from_args(&args.link, LOCKSTEP_DEADLINE, None)
         .map_err(SettingsError::Invalid)?;
-    let (resolved, out, mut resume) = super::resolve_train(args)?;
+    let (resolved, out, mut resume) = super::config::resolve_train(args)?;
     if let Some(v) = &mut resume
         && crate::checkpoint::run_dir_of(&v.dir) == out
         && v.dir.parent() == Some(out.as_path())
