@@ -37,10 +37,11 @@ pub enum SimError {
         message: String,
     },
 
-    #[error("{file}: the {what} became {value} at step {step} of the episode ({detail})")]
+    /// A task file's expression gave NaN or an infinity: which file, which key, when.
+    #[error("{file}: {key}: became {value} at step {step} of the episode ({detail})")]
     NonFinite {
         file: String,
-        what: &'static str,
+        key: String,
         value: f64,
         step: usize,
         detail: String,

@@ -4,9 +4,8 @@ use mujoco_rs::prelude::{MjtJoint, MjtObjBase};
 
 use super::expr::{self, Expr, Statement};
 use super::program::{BindError, Binder, Defines, Model, Op, Phase, Program, Src, State};
-use crate::numpy_rng::RandomState;
 use crate::physics::{Physics, Sync};
-use crate::task::Task;
+use crate::task::{Random, Task};
 
 /// A part of the file that failed to bind: which key, and why.
 #[derive(Clone, Debug, PartialEq)]
@@ -129,6 +128,8 @@ enum Init {
 pub(crate) struct FileTask {
     prog: Program,
     obs: Vec<usize>,
+    /// Each observation part's name (for messages).
+    obs_names: Vec<String>,
     reward: usize,
     terminate: Option<usize>,
     init_prog: Program,
@@ -158,6 +159,11 @@ impl FileTask {
         let mut prog = Program::new();
         let mut b = Binder::new(&mut prog, &model, &parsed.defines, Phase::After);
         let mut obs = Vec::new();
+        let obs_names = parsed
+            .observation
+            .iter()
+            .map(|(n, _, _)| n.clone())
+            .collect();
         for (name, src, e) in &parsed.observation {
             let key = format!("observation '{name}'");
             obs.push(b.bind(e).map_err(|err| bind_error(&key, src, err))?);
@@ -194,6 +200,7 @@ impl FileTask {
         Ok(Self {
             prog,
             obs,
+            obs_names,
             reward,
             terminate,
             init_prog,
@@ -207,6 +214,15 @@ impl FileTask {
     /// Length of the observation.
     pub fn obs_dim(&self) -> usize {
         self.obs_dim
+    }
+
+    /// Each observation part's name and length, in order.
+    pub fn obs_parts(&self) -> Vec<(String, usize)> {
+        self.obs_names
+            .iter()
+            .zip(&self.obs)
+            .map(|(n, &i)| (n.clone(), self.prog.nodes[i].len))
+            .collect()
     }
 
     /// Whether the last evaluated state is terminal.
@@ -225,7 +241,7 @@ impl FileTask {
         self.prog.eval(phase, &state, None);
     }
 
-    fn run_init(&mut self, physics: &mut Physics, random: &mut RandomState) {
+    fn run_init(&mut self, physics: &mut Physics, random: &mut Random) {
         for k in 0..self.init.len() {
             match &self.init[k] {
                 Init::Assign {
@@ -403,7 +419,7 @@ fn bind_init(
 }
 
 impl Task for FileTask {
-    fn initialize_episode(&mut self, physics: &mut Physics, random: &mut RandomState) {
+    fn initialize_episode(&mut self, physics: &mut Physics, random: &mut Random) {
         self.run_init(physics, random);
     }
 
@@ -431,6 +447,22 @@ impl Task for FileTask {
 
     fn terminated(&self) -> bool {
         FileTask::terminated(self)
+    }
+
+    fn observation_key(&self, index: usize) -> String {
+        let mut start = 0;
+        for (name, &i) in self.obs_names.iter().zip(&self.obs) {
+            let len = self.prog.nodes[i].len;
+            if index < start + len {
+                return if len == 1 {
+                    format!("observation '{name}'")
+                } else {
+                    format!("observation '{name}'[{}]", index - start)
+                };
+            }
+            start += len;
+        }
+        "observation".into()
     }
 
     fn sync(&self) -> Sync {
