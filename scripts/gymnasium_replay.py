@@ -116,7 +116,11 @@ def action_sets(task, act_dim, steps=1000):
 
 
 def record(args):
+    args.out = os.path.abspath(args.out)
     os.makedirs(args.out, exist_ok=True)
+    # MuJoCo writes its warnings (half_cheetah.xml's deprecated settotalmass) to
+    # ./MUJOCO_LOG.TXT: let that be beside the recordings, not in the caller's directory.
+    os.chdir(args.out)
     for task in TASKS:
         act_dim = gymnasium.make(task).action_space.shape[0]
         for seed, kind, episodes in action_sets(task, act_dim):

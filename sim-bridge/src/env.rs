@@ -136,8 +136,8 @@ impl SuiteEnv {
         let (q, v) = (self.physics.qpos(), self.physics.qvel());
         let finite = q.iter().chain(v).all(|x| x.is_finite());
         SimError::NonFinite {
-            file: self.file.clone(),
-            key,
+            file: crate::error::one_line(&self.file),
+            key: crate::error::one_line(&key),
             value,
             step,
             detail: match (finite, step) {

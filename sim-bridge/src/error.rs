@@ -66,3 +66,17 @@ pub enum SimError {
     #[error("the episode is over (it lasts {steps} steps); call reset() before stepping again")]
     EpisodeOver { steps: usize },
 }
+
+/// `s` with its control characters written as escapes (`\n`, `\t`, `\u{1b}`): a message that
+/// quotes a task file's text (which TOML lets hold newlines) stays one line.
+pub(crate) fn one_line(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}

@@ -142,6 +142,16 @@ fn an_unknown_name_lists_the_models_names_of_its_kind() {
     has(&msg, &["unknown name `speed`"]);
     let msg = error_of(&dir, "unknown-function", &cartpole_obs("qpos_of('slider')"));
     has(&msg, &["unknown function qpos_of()", "qpos, qvel"]);
+    // Text quoted from the file stays on one line (TOML strings may hold newlines).
+    let msg = error_of(
+        &dir,
+        "newline",
+        &cartpole("[define]\nx = \"(1 + \\nsum(\"\n"),
+    );
+    has(&msg, &["define.x: ", "in \"(1 + \\nsum(\""]);
+    // A definition cannot shadow a built-in name (it would never be read).
+    let msg = error_of(&dir, "shadow", &cartpole("[define]\ndt = \"0.05\"\n"));
+    has(&msg, &["define.dt: `dt` is a built-in name"]);
     let msg = error_of(&dir, "unknown-key", &cartpole("rewrad = \"2\"\n"));
     has(&msg, &["unknown field `rewrad`", "reward"]);
 }
@@ -377,6 +387,27 @@ fn sizes_past_the_limits_are_refused_with_the_limit() {
         );
         has(&error_of(&dir, name, &text), &[want]);
     }
+    // An external plant's sizes have the same limits.
+    let external = |obs: usize, act: usize| {
+        format!(
+            "plant = \"external\"\nepisode_steps = 200\n[external]\nobs = {obs}\nact = {act}\naction_low = [-2]\naction_high = [2]\n"
+        )
+    };
+    has(
+        &error_of(&dir, "external-obs", &external(MAX_OBS + 1, 1)),
+        &[&format!(
+            "external.obs: {}: from 1 to {MAX_OBS}",
+            MAX_OBS + 1
+        )],
+    );
+    has(
+        &error_of(&dir, "external-act", &external(3, 0)),
+        &[&format!("external.act: 0: from 1 to {MAX_ACT}")],
+    );
+    let path = dir.join("external-ok.toml");
+    std::fs::write(&path, external(MAX_OBS, MAX_ACT)).unwrap();
+    let def = TaskDef::from_file(&path).unwrap();
+    assert_eq!((def.spec().obs_dim, def.spec().act_dim), (MAX_OBS, MAX_ACT));
     let huge = cartpole(&format!("# {}\n", "x".repeat(MAX_FILE_BYTES)));
     has(
         &error_of(&dir, "huge", &huge),

@@ -78,10 +78,11 @@ pub const MAX_FILE_BYTES: usize = 1 << 20;
 
 /// A task file's key and what is wrong with it.
 fn bad(file: &str, key: &str, message: impl Into<String>) -> SimError {
+    use crate::error::one_line;
     SimError::TaskFile {
-        file: file.to_string(),
-        key: key.to_string(),
-        message: message.into(),
+        file: one_line(file),
+        key: one_line(key),
+        message: one_line(&message.into()),
     }
 }
 
@@ -288,8 +289,19 @@ impl TaskDef {
                 ));
             }
         }
-        if e.obs == 0 || e.act == 0 {
-            return Err(bad(file, "external", "obs and act must be at least 1"));
+        if !(1..=MAX_OBS).contains(&e.obs) {
+            return Err(bad(
+                file,
+                "external.obs",
+                format!("{}: from 1 to {MAX_OBS}", e.obs),
+            ));
+        }
+        if !(1..=MAX_ACT).contains(&e.act) {
+            return Err(bad(
+                file,
+                "external.act",
+                format!("{}: from 1 to {MAX_ACT}", e.act),
+            ));
         }
         let widen = |v: &[f64], key: &str| -> Result<Vec<f64>, SimError> {
             match v.len() {
@@ -327,10 +339,21 @@ impl TaskDef {
                 "missing: an external plant's episode length",
             )
         })?;
-        if episode_steps == 0 {
-            return Err(bad(file, "episode_steps", "must be at least 1"));
+        if !(1..=10_000_000).contains(&episode_steps) {
+            return Err(bad(
+                file,
+                "episode_steps",
+                format!("{episode_steps}: from 1 to 10^7"),
+            ));
         }
         let control_timestep = toml.control_timestep.unwrap_or(0.0);
+        if !(control_timestep.is_finite() && control_timestep >= 0.0) {
+            return Err(bad(
+                file,
+                "control_timestep",
+                format!("{control_timestep}: seconds, finite and not negative"),
+            ));
+        }
         let mut h = Sha256::new();
         h.update(text.as_bytes());
         Ok(Self {

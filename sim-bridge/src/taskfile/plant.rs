@@ -58,6 +58,15 @@ pub(crate) fn parse(t: &super::format::TaskToml) -> Result<Parsed, KeyError> {
             });
         }
         let key = format!("define.{name}");
+        if super::program::BUILTIN_NAMES.contains(&name.as_str()) {
+            return Err(KeyError {
+                key,
+                message: format!(
+                    "`{name}` is a built-in name (built-in names: {}); choose another",
+                    super::program::BUILTIN_NAMES.join(", ")
+                ),
+            });
+        }
         let e = expr::parse(src).map_err(|e| located(&key, src, e))?;
         defines.insert(name.clone(), (src.clone(), e));
     }
@@ -350,12 +359,21 @@ fn bind_init(
                                 "keyframe() takes the keyframe's name".into(),
                             ));
                         };
-                        let id = super::program::objects(
+                        let ids = super::program::objects(
                             m,
                             MjtObjBase::mjOBJ_KEY,
                             &Expr::Str(name.clone(), *p),
                         )?;
-                        return Ok(Init::Keyframe(id[0]));
+                        let [id] = ids[..] else {
+                            return Err(err(
+                                a.pos(),
+                                format!(
+                                    "keyframe() takes one keyframe's name, not '{name}' ({})",
+                                    super::program::names(m, MjtObjBase::mjOBJ_KEY)
+                                ),
+                            ));
+                        };
+                        return Ok(Init::Keyframe(id));
                     }
                     let mut b = Binder::new(prog, model, defines, Phase::Init);
                     let i = b.bind(a)?;

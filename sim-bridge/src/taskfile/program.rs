@@ -616,6 +616,35 @@ fn array(name: &str) -> Option<(Src, MjtObjBase)> {
     })
 }
 
+/// The names an expression gives a meaning of its own (constants, the step's action and
+/// time, the state arrays, the operators' words): a definition may not take one.
+pub(crate) const BUILTIN_NAMES: &[&str] = &[
+    "pi",
+    "e",
+    "inf",
+    "dt",
+    "timestep",
+    "nq",
+    "nv",
+    "nu",
+    "nbody",
+    "time",
+    "action",
+    "qpos",
+    "qvel",
+    "qacc",
+    "qfrc_constraint",
+    "qfrc_actuator",
+    "ctrl",
+    "act",
+    "actuator_force",
+    "sensordata",
+    "sensor",
+    "and",
+    "or",
+    "not",
+];
+
 /// Every function a file may call, for the "unknown function" message.
 pub(crate) const FUNCTIONS: &[&str] = &[
     "qpos",
