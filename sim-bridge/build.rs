@@ -38,6 +38,7 @@ fn main() {
 
 /// `$OUT_DIR/builtin_tasks.rs`: every `tasks/*.toml` of the repository, compiled in (the name
 /// is the file's stem), so a task file dropped into `tasks/` is built in with no code change.
+/// Subfolders are not read: `tasks/gymnasium/` holds task files loaded from disk like a user's.
 fn builtin_tasks(hasher: &mut DefaultHasher) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tasks");
     println!("cargo::rerun-if-changed={}", dir.display());

@@ -117,3 +117,67 @@ pub mod frames {
         out.extend(payload);
     }
 }
+
+/// `task_file`: a mode byte, then UTF-8 text. Mode 0: the text is a whole task file. Other
+/// modes: the text is one expression, put as the `reward` of a template task file on one of
+/// [`task_file::TEMPLATES`]' models (`mode % 4`), which also uses it as an observation part
+/// and (odd modes) as `terminate`.
+pub mod task_file {
+    /// Models for the expression templates: two Control Suite models, two of Gymnasium's.
+    pub const TEMPLATES: [&str; 4] = [
+        "suite:cartpole.xml",
+        "suite:walker.xml",
+        "gymnasium:half_cheetah.xml",
+        "gymnasium:inverted_double_pendulum.xml",
+    ];
+
+    /// Packs a whole task file (mode 0).
+    pub fn encode_file(text: &str) -> Vec<u8> {
+        let mut out = vec![0u8];
+        out.extend(text.as_bytes());
+        out
+    }
+
+    /// Packs an expression for the template of `mode` (1 to 255).
+    pub fn encode_expression(mode: u8, expr: &str) -> Vec<u8> {
+        assert_ne!(mode, 0, "mode 0 is a whole file");
+        let mut out = vec![mode];
+        out.extend(expr.as_bytes());
+        out
+    }
+
+    /// The task file an input stands for, or None when it is not one (not UTF-8, or an
+    /// expression TOML cannot hold in a string).
+    pub fn decode(data: &[u8]) -> Option<String> {
+        let (&mode, rest) = data.split_first()?;
+        let text = std::str::from_utf8(rest).ok()?;
+        if mode == 0 {
+            return Some(text.to_string());
+        }
+        // A TOML literal string ('...') holds anything but `'` and control characters; the
+        // expression language's strings take either quote, so `'` becomes `"`.
+        if text.chars().any(|c| c.is_control() && c != '\t') {
+            return None;
+        }
+        Some(template(mode, &text.replace('\'', "\"")))
+    }
+
+    fn template(mode: u8, expr: &str) -> String {
+        let model = TEMPLATES[mode as usize % TEMPLATES.len()];
+        let convention = if model.starts_with("gymnasium:") {
+            "convention = \"gymnasium\"\n"
+        } else {
+            ""
+        };
+        let terminate = if mode % 2 == 1 {
+            format!("terminate = '{expr}'\n")
+        } else {
+            String::new()
+        };
+        format!(
+            "model = \"{model}\"\n{convention}episode_steps = 5\nreward = '{expr}'\n{terminate}\
+             init = ['qpos = qpos + uniform(-0.1, 0.1, nq)', 'qvel = 0.1 * randn(nv)']\n\
+             observation = [{{ name = \"q\", value = \"qpos\" }}, {{ name = \"e\", value = '{expr}' }}]\n"
+        )
+    }
+}

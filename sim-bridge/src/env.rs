@@ -1,18 +1,19 @@
 //! `rl/control.py`'s `Environment` for one task: episode bookkeeping around physics and task.
 
 use crate::error::SimError;
+use crate::numpy_generator::Generator;
 use crate::numpy_rng::RandomState;
 use crate::physics::{Physics, Sync};
-use crate::task::Task;
+use crate::task::{Random, Task};
 use crate::{Environment, Step, TaskSpec};
 
 /// A MuJoCo environment: model, task logic (a task file's, or during the move to files a
-/// Rust one), the task's `RandomState` and the step count.
+/// Rust one), the task's random stream and the step count.
 pub struct SuiteEnv {
     spec: TaskSpec,
     physics: Physics,
     task: Box<dyn Task>,
-    random: RandomState,
+    random: Random,
     n_sub_steps: usize,
     /// How much state the task needs refreshed after each step.
     sync: Sync,
@@ -66,7 +67,13 @@ impl SuiteEnv {
             spec: p.spec,
             physics: p.physics,
             task: p.task,
-            random: RandomState::new(p.seed),
+            // Each library's seeding: dm_control's `RandomState(seed)`, Gymnasium's
+            // `reset(seed=seed)` (`Generator(PCG64(SeedSequence(seed)))`).
+            random: if p.gymnasium {
+                Random::Generator(Generator::new(u64::from(p.seed)))
+            } else {
+                Random::Legacy(RandomState::new(p.seed))
+            },
             n_sub_steps: p.n_sub_steps,
             sync,
             gymnasium: p.gymnasium,
@@ -125,19 +132,31 @@ impl SuiteEnv {
 }
 
 impl SuiteEnv {
-    fn non_finite(&self, what: &'static str, value: f64, step: usize) -> SimError {
+    fn non_finite(&self, key: String, value: f64, step: usize) -> SimError {
         let (q, v) = (self.physics.qpos(), self.physics.qvel());
         let finite = q.iter().chain(v).all(|x| x.is_finite());
         SimError::NonFinite {
-            file: self.file.clone(),
-            what,
+            file: crate::error::one_line(&self.file),
+            key: crate::error::one_line(&key),
             value,
             step,
-            detail: if finite {
-                "the state is finite: an expression of the file divides by zero or leaves its domain".into()
-            } else {
-                "the simulation diverged".into()
+            detail: match (finite, step) {
+                (true, 0) => "after the initial state, which is finite: an expression of the file divides by zero or leaves its domain".into(),
+                (true, _) => "the state is finite: an expression of the file divides by zero or leaves its domain".into(),
+                (false, 0) => "the initial state is not finite: see the file's init".into(),
+                (false, _) => "the simulation diverged".into(),
             },
+        }
+    }
+
+    /// The first non-finite reward or observation element of the current state, as an error.
+    fn check_values(&self, reward: Option<f64>, obs: &[f64], step: usize) -> Result<(), SimError> {
+        if let Some(r) = reward.filter(|r| !r.is_finite()) {
+            return Err(self.non_finite("reward".into(), r, step));
+        }
+        match obs.iter().position(|v| !v.is_finite()) {
+            Some(i) => Err(self.non_finite(self.task.observation_key(i), obs[i], step)),
+            None => Ok(()),
         }
     }
 }
@@ -148,6 +167,12 @@ impl Environment for SuiteEnv {
     }
 
     fn reset(&mut self, obs: &mut [f64]) {
+        if let Err(e) = self.try_reset(obs) {
+            panic!("{e}");
+        }
+    }
+
+    fn try_reset(&mut self, obs: &mut [f64]) -> Result<(), SimError> {
         assert_eq!(obs.len(), self.spec.obs_dim, "observation buffer length");
         self.physics.reset();
         self.task
@@ -163,7 +188,11 @@ impl Environment for SuiteEnv {
         self.task.before_step(&mut self.physics, &self.ctrl);
         self.task.after_step(&mut self.physics);
         self.task.observe(&self.physics, obs);
+        // A non-finite initial state (an `init` expression out of its domain) starts no episode.
+        self.step_count = None;
+        self.check_values(None, obs, 0)?;
         self.step_count = Some(0);
+        Ok(())
     }
 
     fn step(&mut self, action: &[f64], obs: &mut [f64]) -> Step {
@@ -203,13 +232,9 @@ impl Environment for SuiteEnv {
         let reward = self.task.reward(&self.physics);
         self.task.observe(&self.physics, obs);
         let count = self.step_count.map_or(1, |n| n + 1);
-        if !reward.is_finite() {
+        if let Err(e) = self.check_values(Some(reward), obs, count) {
             self.step_count = None;
-            return Err(self.non_finite("reward", reward, count));
-        }
-        if let Some(&v) = obs.iter().find(|v| !v.is_finite()) {
-            self.step_count = None;
-            return Err(self.non_finite("observation", v, count));
+            return Err(e);
         }
         let terminated = self.task.terminated();
         let last = terminated || count >= self.spec.episode_steps;

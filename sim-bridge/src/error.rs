@@ -45,10 +45,11 @@ pub enum SimError {
         message: String,
     },
 
-    #[error("{file}: the {what} became {value} at step {step} of the episode ({detail})")]
+    /// A task file's expression gave NaN or an infinity: which file, which key, when.
+    #[error("{file}: {key}: became {value} at step {step} of the episode ({detail})")]
     NonFinite {
         file: String,
-        what: &'static str,
+        key: String,
         value: f64,
         step: usize,
         detail: String,
@@ -72,4 +73,18 @@ pub enum SimError {
 
     #[error("the episode is over (it lasts {steps} steps); call reset() before stepping again")]
     EpisodeOver { steps: usize },
+}
+
+/// `s` with its control characters written as escapes (`\n`, `\t`, `\u{1b}`): a message that
+/// quotes a task file's text (which TOML lets hold newlines) stays one line.
+pub(crate) fn one_line(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }

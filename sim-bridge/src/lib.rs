@@ -31,6 +31,7 @@ mod env;
 mod error;
 pub mod launcher;
 mod logging;
+pub mod numpy_generator;
 pub mod numpy_rng;
 pub mod physics;
 pub mod randomizers;
@@ -64,18 +65,23 @@ pub struct TaskSpec {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Step {
     pub reward: f64,
-    /// Always 1.0: Control Suite tasks never terminate, and the time limit is not a terminal state.
+    /// 0.0 when a task file's `terminate` ended the episode in a terminal state, else 1.0 (the
+    /// time limit is not a terminal state; the Control Suite tasks never terminate).
     pub discount: f64,
-    /// True on the episode's last step (the time limit); `reset` must come next.
+    /// True on the episode's last step (the time limit or a termination); `reset` must come
+    /// next.
     pub last: bool,
 }
 
 /// A Control Suite task as the trainer sees it.
 pub trait Environment: Send {
     fn spec(&self) -> &TaskSpec;
-    /// Starts an episode; draws the initial state from the environment's RandomState stream
-    /// (seeded at construction, dm_control semantics: successive resets continue the stream).
-    /// Writes the flattened observation.
+    /// Starts an episode; draws the initial state from the environment's random stream
+    /// (seeded at construction; successive resets continue the stream, as in dm_control and in
+    /// Gymnasium after `reset(seed=...)`). Writes the flattened observation.
+    ///
+    /// # Panics
+    /// When the initial observation is not finite ([`Environment::try_reset`] reports it).
     fn reset(&mut self, obs: &mut [f64]);
     /// Applies one action (not clipped, as dm_control), advances one control step, writes the
     /// observation.
@@ -92,6 +98,13 @@ pub trait Environment: Send {
     /// (for test doubles) just calls `step`; [`SuiteEnv`] checks everything `step` would panic on.
     fn try_step(&mut self, action: &[f64], obs: &mut [f64]) -> Result<Step, SimError> {
         Ok(self.step(action, obs))
+    }
+    /// [`Environment::reset`] that reports a non-finite initial observation (a task file's
+    /// `init` or observation out of its domain) as an error instead of panicking; no episode
+    /// starts then. The default just calls `reset`.
+    fn try_reset(&mut self, obs: &mut [f64]) -> Result<(), SimError> {
+        self.reset(obs);
+        Ok(())
     }
 }
 

@@ -3,16 +3,13 @@
 
 use mujoco_rs::prelude::MjtJoint;
 
-use crate::numpy_rng::RandomState;
 use crate::physics::Physics;
+use crate::task::Random;
 
 /// `randomize_limited_and_rotational_joints` for hinge and slide joints, in joint order: a limited
 /// joint is drawn uniformly in its range, an unlimited hinge in [-pi, pi), an unlimited slide is
 /// left alone.
-pub(crate) fn randomize_limited_and_rotational_joints(
-    physics: &mut Physics,
-    random: &mut RandomState,
-) {
+pub(crate) fn randomize_limited_and_rotational_joints(physics: &mut Physics, random: &mut Random) {
     use core::f64::consts::PI;
     let njnt = physics.model().jnt_type().len();
     for id in 0..njnt {

@@ -1,5 +1,6 @@
 //! After construction and the first reset, stepping and resetting allocate nothing (the trainer
-//! calls them millions of times). A counting global allocator proves it for every task.
+//! calls them millions of times). A counting global allocator proves it for every built-in task and
+//! the Gymnasium task files (tasks/gymnasium/).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -34,8 +35,19 @@ fn allocations() -> usize {
 
 #[test]
 fn stepping_and_resetting_do_not_allocate() {
-    for task in sim_bridge::TASKS {
-        let mut env = sim_bridge::make(task, 5).unwrap();
+    let gymnasium = ["InvertedDoublePendulum-v5", "HalfCheetah-v5"].map(|n| {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(format!("../tasks/gymnasium/{n}.toml"));
+        sim_bridge::TaskDef::from_file(&path).unwrap()
+    });
+    let envs = sim_bridge::TASKS
+        .iter()
+        .map(|task| (task.to_string(), sim_bridge::make(task, 5).unwrap()))
+        .chain(gymnasium.iter().map(|d| {
+            let env: Box<dyn sim_bridge::Environment> = Box::new(d.make(5).unwrap());
+            (d.name().to_string(), env)
+        }));
+    for (task, mut env) in envs {
         let spec = env.spec().clone();
         let mut obs = vec![0.0; spec.obs_dim];
         let action = vec![0.3; spec.act_dim];
@@ -45,9 +57,14 @@ fn stepping_and_resetting_do_not_allocate() {
             if episode > 0 {
                 env.reset(&mut obs);
             }
-            for _ in 0..spec.episode_steps {
+            // Until the episode's end: the time limit, or a termination (the Gymnasium
+            // pendulum falls).
+            loop {
                 let step = env.step(&action, &mut obs);
                 assert!(step.reward.is_finite());
+                if step.last {
+                    break;
+                }
             }
         }
         assert_eq!(

@@ -84,3 +84,74 @@ fn built_in_task_files_keep_the_bits_of_the_tasks_they_replaced() {
         assert_eq!(pinned.get(k), Some(v), "{k}: the task's trajectory changed");
     }
 }
+
+/// The repository's `tasks/gymnasium/<name>.toml`.
+fn gymnasium_task(name: &str) -> sim_bridge::TaskDef {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../tasks/gymnasium/{name}.toml"));
+    sim_bridge::TaskDef::from_file(&path).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn gymnasium_task_files_load_from_files_and_are_not_built_in() {
+    // (name, observation, action) of Gymnasium 1.4.0's v5 environments; dt = 5 x 0.01 s.
+    for (name, obs, act) in [
+        ("InvertedDoublePendulum-v5", 9, 1),
+        ("HalfCheetah-v5", 17, 6),
+    ] {
+        assert!(!TASKS.contains(&name), "{name} must not be compiled in");
+        let def = gymnasium_task(name);
+        let s = def.spec();
+        assert_eq!(
+            (s.obs_dim, s.act_dim, s.episode_steps),
+            (obs, act, 1000),
+            "{name}"
+        );
+        assert_eq!(s.control_timestep, 0.01 * 5.0, "{name}");
+        assert_eq!(
+            def.convention(),
+            sim_bridge::taskfile::Convention::Gymnasium
+        );
+        assert!(
+            def.action_bounds().iter().all(|&b| b == (-1.0, 1.0)),
+            "{name}"
+        );
+    }
+    assert!(TASKS.iter().all(|t| !t.contains("v5")), "{TASKS:?}");
+}
+
+unsafe extern "C" {
+    /// The C library's `pow`, which Python's `float ** float` and numpy's scalar `**` call.
+    fn pow(x: f64, y: f64) -> f64;
+}
+
+#[test]
+fn power_is_the_c_librarys_pow_and_square_is_a_product() {
+    // A value where glibc 2.36's pow(x, 2) is one ulp above x * x (numpy's `np.float64(x) ** 2`
+    // and Python's `x ** 2` give pow's result; `np.square(x)` gives x * x).
+    let x = -1.439_494_399_547_860_4_f64;
+    let dir = std::env::temp_dir().join(format!("sim-bridge-pow-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("pow.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "model = \"suite:cartpole.xml\"\ntime_limit = 1.0\nreward = \"1\"\n\
+             observation = [{{ name = \"p\", value = \"[q ** 2, square(q), q ** 3, q ** -1]\" }}]\n\
+             [define]\nq = \"qpos('slider') + {x:?}\"\n"
+        ),
+    )
+    .unwrap();
+    let def = sim_bridge::TaskDef::from_file(&path).unwrap();
+    let mut env = def.make(0).unwrap();
+    let mut obs = vec![0.0; 4];
+    env.reset(&mut obs);
+    // At reset the slider is at 0: q is x.
+    assert_eq!(env.qpos()[0], 0.0);
+    // black_box: with a constant exponent LLVM would turn pow(x, 2.0) into x * x here.
+    let c = |y| unsafe { pow(std::hint::black_box(x), std::hint::black_box(y)) };
+    let want = [c(2.0), x * x, c(3.0), c(-1.0)];
+    for (i, (a, b)) in obs.iter().zip(want).enumerate() {
+        assert_eq!(a.to_bits(), b.to_bits(), "element {i}: {a:e} != {b:e}");
+    }
+}

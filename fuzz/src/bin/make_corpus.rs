@@ -2,18 +2,20 @@
 //! encoders: checkpoints written by `mpo train` and by `checkpoint::save`, the `config.toml` a
 //! run writes and the `--set` examples of the docs, action files written with Rust's
 //! shortest float formatting, link messages from the plant's and the controller's encoders,
-//! firmware records of real Control Suite observations, and device frames from
-//! `mpo_frames::encode`.
+//! firmware records of real Control Suite observations, device frames from
+//! `mpo_frames::encode`, and the repository's task files (tasks/, tasks/gymnasium/) with
+//! expressions of the kinds they use.
 //!
 //! cargo +nightly fuzz build make_corpus &&
 //!     fuzz/target/x86_64-unknown-linux-gnu/release/make_corpus fuzz/corpus RUN_DIR...
-//! (each RUN_DIR from `mpo train --net tiny --steps N --out RUN_DIR`)
+//! (each RUN_DIR from `mpo train --net tiny --steps N --out RUN_DIR`; with no RUN_DIR only
+//! the task_file corpus is written)
 
 use std::path::{Path, PathBuf};
 
 use mpo_core::actor::Actor;
 use mpo_core::rng::Rng;
-use mpo_fuzz::{actions_csv, checkpoint as ck, config, frames, link};
+use mpo_fuzz::{actions_csv, checkpoint as ck, config, frames, link, task_file};
 use mpo_host::checkpoint;
 use mpo_host::commands;
 use mpo_host::trainer::Trainer;
@@ -52,6 +54,10 @@ fn main() {
     let (out, runs) = args
         .split_first()
         .expect("usage: make_corpus OUT RUN_DIR...");
+    task_files(out);
+    if runs.is_empty() {
+        return;
+    }
 
     // checkpoint: real runs with their own SHA256SUMS and with the fix-up flag, and a small one.
     for run in runs {
@@ -295,4 +301,69 @@ fn main() {
     }
     write(out, "device_frames", "stream", &stream);
     write(out, "device_frames", "records", &records);
+}
+
+/// task_file: every task file of the repository, and template expressions (see
+/// `mpo_fuzz::task_file`) on each template model.
+fn task_files(out: &Path) {
+    let tasks = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tasks");
+    for dir in [tasks.clone(), tasks.join("gymnasium")] {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            .collect();
+        files.sort();
+        for f in files {
+            let text = std::fs::read_to_string(&f).unwrap();
+            let name = f.file_stem().unwrap().to_string_lossy();
+            write(out, "task_file", &name, &task_file::encode_file(&text));
+        }
+    }
+    // (mode, expression): mode % 4 picks the model (cartpole, walker, Gymnasium's cheetah,
+    // Gymnasium's double pendulum), odd modes also terminate on it.
+    let expressions = [
+        (
+            4,
+            "tolerance(xmat('pole_1', 'zz'), bounds=(0.9, 1), margin=0.5, sigmoid='long_tail')",
+        ),
+        (
+            8,
+            "(1 + min(tolerance(qvel[1:], margin=5, sigmoid='reciprocal'))) / 2 * qpos('slider') ** 2",
+        ),
+        (
+            1,
+            "xpos('torso', 'z') < 0.8 or abs(xmat('torso', 'zz')) < 0.5",
+        ),
+        (
+            5,
+            "clip(qfrc_constraint, -10, 10)[0] + norm(body_linvel('torso', frame='world')) + mean(cvel('*')[:3])",
+        ),
+        (
+            9,
+            "where(sensor('torso_subtreelinvel')[0] > 1, 1, exp(-abs(qvel[0]))) * prod(ctrlrange('right_hip'))",
+        ),
+        (
+            2,
+            "(qpos('rootx') - prev(qpos('rootx'))) / dt - 0.1 * sum(square(action))",
+        ),
+        (
+            6,
+            "arctan2(xipos('torso', 'z'), subtree_com('torso')[0]) + log1p(sum(geom_xpos('*')[-3:]))",
+        ),
+        (3, "site_xpos('tip', 'z') <= 1"),
+        (
+            7,
+            "10 * (not site_xpos('tip', 'z') <= 1) - 0.01 * site_xpos('tip', 'x') ** 2 - maximum(qvel, -qvel)[1]",
+        ),
+    ];
+    for (i, (mode, e)) in expressions.iter().enumerate() {
+        write(
+            out,
+            "task_file",
+            &format!("expression-{i}"),
+            &task_file::encode_expression(*mode, e),
+        );
+    }
 }

@@ -69,12 +69,20 @@ pub struct TaskDef {
     bounds: Vec<(f64, f64)>,
 }
 
+/// The most numbers an observation may have (Gymnasium's Humanoid-v5 has 348).
+pub const MAX_OBS: usize = 1024;
+/// The most action dimensions (dm_control's dog has 38).
+pub const MAX_ACT: usize = 64;
+/// The longest task file, in bytes.
+pub const MAX_FILE_BYTES: usize = 1 << 20;
+
 /// A task file's key and what is wrong with it.
 fn bad(file: &str, key: &str, message: impl Into<String>) -> SimError {
+    use crate::error::one_line;
     SimError::TaskFile {
-        file: file.to_string(),
-        key: key.to_string(),
-        message: message.into(),
+        file: one_line(file),
+        key: one_line(key),
+        message: one_line(&message.into()),
     }
 }
 
@@ -100,6 +108,19 @@ impl TaskDef {
     /// A task file. Its model path is relative to the file's folder.
     pub fn from_file(path: &Path) -> Result<Self, SimError> {
         let file = path.display().to_string();
+        match std::fs::metadata(path) {
+            Ok(m) if m.len() > MAX_FILE_BYTES as u64 => {
+                return Err(bad(
+                    &file,
+                    "(file)",
+                    format!(
+                        "{} bytes; a task file has at most {MAX_FILE_BYTES}",
+                        m.len()
+                    ),
+                ));
+            }
+            _ => {}
+        }
         let text = std::fs::read_to_string(path)
             .map_err(|e| bad(&file, "(file)", format!("cannot be read: {e}")))?;
         let stem = path
@@ -126,6 +147,16 @@ impl TaskDef {
         dir: &Path,
         file: &str,
     ) -> Result<Self, SimError> {
+        if text.len() > MAX_FILE_BYTES {
+            return Err(bad(
+                file,
+                "(file)",
+                format!(
+                    "{} bytes; a task file has at most {MAX_FILE_BYTES}",
+                    text.len()
+                ),
+            ));
+        }
         let toml = parse_toml(text, file)?;
         let name = toml.name.clone().unwrap_or_else(|| stem.to_string());
         if name.is_empty()
@@ -149,22 +180,26 @@ impl TaskDef {
             bad(
                 file,
                 "model",
-                "missing: the MJCF model file (a path relative to this file, or suite:<file>)",
+                "missing: the MJCF model file (a path relative to this file, suite:<file> or gymnasium:<file>)",
             )
         })?;
-        let model = if let Some(f) = model_key.strip_prefix("suite:") {
-            ModelRef::Suite(f.to_string())
-        } else if let Some(f) = model_key.strip_prefix("gymnasium:") {
-            ModelRef::Gymnasium(f.to_string())
-        } else {
-            ModelRef::Path(dir.join(model_key))
-        };
+        let model = model_ref(model_key, dir, file)?;
         let physics = load_physics(&model, file)?;
         let timestep = physics.timestep();
         let n_sub_steps = substeps(&toml, timestep, file)?;
         let control_timestep = timestep * n_sub_steps as f64;
         let episode_steps = episode_steps(&toml, control_timestep, file)?;
         let (actuators, bounds) = actuators(&toml, &physics, file)?;
+        if actuators.len() > MAX_ACT {
+            return Err(bad(
+                file,
+                "actuators",
+                format!(
+                    "{} action dimensions; at most {MAX_ACT} (list the ones the policy drives)",
+                    actuators.len()
+                ),
+            ));
+        }
         let unit = bounds.iter().all(|&b| b == (-1.0, 1.0));
         let scale = (!unit).then(|| {
             bounds
@@ -181,6 +216,20 @@ impl TaskDef {
         )
         .map_err(|e| bad(file, &e.key, e.message))?;
         let obs_dim = task.obs_dim();
+        if obs_dim > MAX_OBS {
+            return Err(bad(
+                file,
+                "observation",
+                format!(
+                    "{obs_dim} numbers ({}); at most {MAX_OBS}",
+                    task.obs_parts()
+                        .iter()
+                        .map(|(n, l)| format!("{n} {l}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        }
         if obs_dim == 0 {
             return Err(bad(
                 file,
@@ -241,8 +290,19 @@ impl TaskDef {
                 ));
             }
         }
-        if e.obs == 0 || e.act == 0 {
-            return Err(bad(file, "external", "obs and act must be at least 1"));
+        if !(1..=MAX_OBS).contains(&e.obs) {
+            return Err(bad(
+                file,
+                "external.obs",
+                format!("{}: from 1 to {MAX_OBS}", e.obs),
+            ));
+        }
+        if !(1..=MAX_ACT).contains(&e.act) {
+            return Err(bad(
+                file,
+                "external.act",
+                format!("{}: from 1 to {MAX_ACT}", e.act),
+            ));
         }
         let widen = |v: &[f64], key: &str| -> Result<Vec<f64>, SimError> {
             match v.len() {
@@ -280,10 +340,21 @@ impl TaskDef {
                 "missing: an external plant's episode length",
             )
         })?;
-        if episode_steps == 0 {
-            return Err(bad(file, "episode_steps", "must be at least 1"));
+        if !(1..=10_000_000).contains(&episode_steps) {
+            return Err(bad(
+                file,
+                "episode_steps",
+                format!("{episode_steps}: from 1 to 10^7"),
+            ));
         }
         let control_timestep = toml.control_timestep.unwrap_or(0.0);
+        if !(control_timestep.is_finite() && control_timestep >= 0.0) {
+            return Err(bad(
+                file,
+                "control_timestep",
+                format!("{control_timestep}: seconds, finite and not negative"),
+            ));
+        }
         let mut h = Sha256::new();
         h.update(text.as_bytes());
         Ok(Self {
@@ -395,7 +466,9 @@ impl TaskDef {
         }
     }
 
-    /// A fresh environment of this task, its `RandomState` seeded with `seed`.
+    /// A fresh environment of this task, its random stream seeded with `seed` (numpy's legacy
+    /// `RandomState(seed)`, or `Generator(PCG64(SeedSequence(seed)))` with the gymnasium
+    /// convention).
     pub fn make(&self, seed: u32) -> Result<crate::SuiteEnv, SimError> {
         let file = self.display_file();
         let (Some(model), Some(parsed)) = (&self.model, &self.parsed) else {
@@ -453,21 +526,93 @@ fn parse_toml(text: &str, file: &str) -> Result<TaskToml, SimError> {
     })
 }
 
+/// The `model` key: `suite:<file>` and `gymnasium:<file>` name a file of that folder (checked
+/// to be there, the folder's models listed when it is not), anything else is a path relative
+/// to the task file.
+fn model_ref(key: &str, dir: &Path, file: &str) -> Result<ModelRef, SimError> {
+    let named = |prefix: &str, name: &str, folder: PathBuf, setup: &str| {
+        let models = || {
+            let mut v: Vec<String> = std::fs::read_dir(&folder)
+                .map(|d| {
+                    d.flatten()
+                        .map(|e| e.file_name().to_string_lossy().to_string())
+                        .filter(|n| n.ends_with(".xml"))
+                        .collect()
+                })
+                .unwrap_or_default();
+            v.sort();
+            v.join(", ")
+        };
+        if !folder.is_dir() {
+            return Err(bad(
+                file,
+                "model",
+                format!(
+                    "{prefix}{name}: the folder {} is missing; run `{setup}` from the repository root",
+                    folder.display()
+                ),
+            ));
+        }
+        let plain =
+            !name.is_empty() && !name.contains(['/', '\\', '\0']) && name != "." && name != "..";
+        if !plain || !folder.join(name).is_file() {
+            return Err(bad(
+                file,
+                "model",
+                format!("{prefix}{name}: no such model (models: {})", models()),
+            ));
+        }
+        Ok(name.to_string())
+    };
+    Ok(if let Some(f) = key.strip_prefix("suite:") {
+        ModelRef::Suite(named(
+            "suite:",
+            f,
+            crate::assets::suite_dir(),
+            crate::SETUP_COMMAND,
+        )?)
+    } else if let Some(f) = key.strip_prefix("gymnasium:") {
+        ModelRef::Gymnasium(named(
+            "gymnasium:",
+            f,
+            crate::assets::gymnasium_dir(),
+            "scripts/setup-gymnasium",
+        )?)
+    } else {
+        let p = dir.join(key);
+        if key.is_empty() || key.contains('\0') || !p.is_file() {
+            return Err(bad(
+                file,
+                "model",
+                format!(
+                    "{} does not exist (a path relative to the task file, or suite:<file>, gymnasium:<file>)",
+                    p.display()
+                ),
+            ));
+        }
+        ModelRef::Path(p)
+    })
+}
+
 fn load_physics(model: &ModelRef, file: &str) -> Result<Physics, SimError> {
-    match model {
+    let loaded = match model {
         ModelRef::Suite(f) => Physics::load_suite(f),
         ModelRef::Gymnasium(f) => Physics::load_file(&crate::assets::gymnasium_dir().join(f)),
-        ModelRef::Path(p) => {
-            if !p.is_file() {
-                return Err(bad(
-                    file,
-                    "model",
-                    format!("{} does not exist", p.display()),
-                ));
-            }
-            Physics::load_file(p)
-        }
-    }
+        ModelRef::Path(p) => Physics::load_file(p),
+    };
+    // MuJoCo's own message (an XML error, a missing include) under the task file's key.
+    loaded.map_err(|e| match e {
+        SimError::ModelLoad { path, message } => bad(
+            file,
+            "model",
+            format!(
+                "MuJoCo cannot load {}: {}",
+                path.display(),
+                message.split_whitespace().collect::<Vec<_>>().join(" ")
+            ),
+        ),
+        e => e,
+    })
 }
 
 fn substeps(t: &TaskToml, timestep: f64, file: &str) -> Result<usize, SimError> {

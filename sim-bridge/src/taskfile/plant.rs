@@ -4,9 +4,8 @@ use mujoco_rs::prelude::{MjtJoint, MjtObjBase};
 
 use super::expr::{self, Expr, Statement};
 use super::program::{BindError, Binder, Defines, Model, Op, Phase, Program, Src, State};
-use crate::numpy_rng::RandomState;
 use crate::physics::{Physics, Sync};
-use crate::task::Task;
+use crate::task::{Random, Task};
 
 /// A part of the file that failed to bind: which key, and why.
 #[derive(Clone, Debug, PartialEq)]
@@ -59,6 +58,15 @@ pub(crate) fn parse(t: &super::format::TaskToml) -> Result<Parsed, KeyError> {
             });
         }
         let key = format!("define.{name}");
+        if super::program::BUILTIN_NAMES.contains(&name.as_str()) {
+            return Err(KeyError {
+                key,
+                message: format!(
+                    "`{name}` is a built-in name (built-in names: {}); choose another",
+                    super::program::BUILTIN_NAMES.join(", ")
+                ),
+            });
+        }
         let e = expr::parse(src).map_err(|e| located(&key, src, e))?;
         defines.insert(name.clone(), (src.clone(), e));
     }
@@ -129,6 +137,8 @@ enum Init {
 pub(crate) struct FileTask {
     prog: Program,
     obs: Vec<usize>,
+    /// Each observation part's name (for messages).
+    obs_names: Vec<String>,
     reward: usize,
     terminate: Option<usize>,
     init_prog: Program,
@@ -158,6 +168,11 @@ impl FileTask {
         let mut prog = Program::new();
         let mut b = Binder::new(&mut prog, &model, &parsed.defines, Phase::After);
         let mut obs = Vec::new();
+        let obs_names = parsed
+            .observation
+            .iter()
+            .map(|(n, _, _)| n.clone())
+            .collect();
         for (name, src, e) in &parsed.observation {
             let key = format!("observation '{name}'");
             obs.push(b.bind(e).map_err(|err| bind_error(&key, src, err))?);
@@ -194,6 +209,7 @@ impl FileTask {
         Ok(Self {
             prog,
             obs,
+            obs_names,
             reward,
             terminate,
             init_prog,
@@ -207,6 +223,15 @@ impl FileTask {
     /// Length of the observation.
     pub fn obs_dim(&self) -> usize {
         self.obs_dim
+    }
+
+    /// Each observation part's name and length, in order.
+    pub fn obs_parts(&self) -> Vec<(String, usize)> {
+        self.obs_names
+            .iter()
+            .zip(&self.obs)
+            .map(|(n, &i)| (n.clone(), self.prog.nodes[i].len))
+            .collect()
     }
 
     /// Whether the last evaluated state is terminal.
@@ -225,7 +250,7 @@ impl FileTask {
         self.prog.eval(phase, &state, None);
     }
 
-    fn run_init(&mut self, physics: &mut Physics, random: &mut RandomState) {
+    fn run_init(&mut self, physics: &mut Physics, random: &mut Random) {
         for k in 0..self.init.len() {
             match &self.init[k] {
                 Init::Assign {
@@ -334,12 +359,21 @@ fn bind_init(
                                 "keyframe() takes the keyframe's name".into(),
                             ));
                         };
-                        let id = super::program::objects(
+                        let ids = super::program::objects(
                             m,
                             MjtObjBase::mjOBJ_KEY,
                             &Expr::Str(name.clone(), *p),
                         )?;
-                        return Ok(Init::Keyframe(id[0]));
+                        let [id] = ids[..] else {
+                            return Err(err(
+                                a.pos(),
+                                format!(
+                                    "keyframe() takes one keyframe's name, not '{name}' ({})",
+                                    super::program::names(m, MjtObjBase::mjOBJ_KEY)
+                                ),
+                            ));
+                        };
+                        return Ok(Init::Keyframe(id));
                     }
                     let mut b = Binder::new(prog, model, defines, Phase::Init);
                     let i = b.bind(a)?;
@@ -403,7 +437,7 @@ fn bind_init(
 }
 
 impl Task for FileTask {
-    fn initialize_episode(&mut self, physics: &mut Physics, random: &mut RandomState) {
+    fn initialize_episode(&mut self, physics: &mut Physics, random: &mut Random) {
         self.run_init(physics, random);
     }
 
@@ -431,6 +465,22 @@ impl Task for FileTask {
 
     fn terminated(&self) -> bool {
         FileTask::terminated(self)
+    }
+
+    fn observation_key(&self, index: usize) -> String {
+        let mut start = 0;
+        for (name, &i) in self.obs_names.iter().zip(&self.obs) {
+            let len = self.prog.nodes[i].len;
+            if index < start + len {
+                return if len == 1 {
+                    format!("observation '{name}'")
+                } else {
+                    format!("observation '{name}'[{}]", index - start)
+                };
+            }
+            start += len;
+        }
+        "observation".into()
     }
 
     fn sync(&self) -> Sync {

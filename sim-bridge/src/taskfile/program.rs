@@ -17,9 +17,9 @@ use std::collections::BTreeMap;
 use mujoco_rs::prelude::{MjModel, MjtJoint, MjtObjBase};
 
 use super::expr::{BinOp, Expr, Index, Pos, UnOp};
-use crate::numpy_rng::RandomState;
 use crate::physics::Physics;
 use crate::rewards::{Sigmoid, Tolerance};
+use crate::task::Random;
 
 /// A binding error: what is wrong, and where in the expression when known.
 #[derive(Clone, Debug, PartialEq)]
@@ -198,9 +198,9 @@ impl Fn2 {
                 BinOp::Sub => a - b,
                 BinOp::Mul => a * b,
                 BinOp::Div => a / b,
-                // `x ** 2` is `x * x` in numpy and Python (both correctly rounded); other
-                // powers go through `pow`.
-                BinOp::Pow if b == 2.0 => a * a,
+                // Python's `float ** float` and numpy's scalar `**`: the C library's `pow`,
+                // also for `x ** 2` (glibc's `pow(x, 2)` differs from `x * x` in about one
+                // case in a thousand; `square(x)` is `x * x`, numpy's `np.square`).
                 BinOp::Pow => a.powf(b),
                 BinOp::Lt => f64::from(a < b),
                 BinOp::Le => f64::from(a <= b),
@@ -316,9 +316,9 @@ pub(crate) enum Op {
         local: bool,
         linear: bool,
     },
-    /// `uniform(low, high, n)`: numpy's `RandomState.uniform`, element by element.
+    /// `uniform(low, high, n)`: the task stream's `uniform`, element by element.
     Uniform(usize, usize),
-    /// `normal(loc, scale, n)`: `loc + scale * g` for each of numpy's legacy Gaussians `g`.
+    /// `normal(loc, scale, n)`: `loc + scale * g` for each of the stream's Gaussians `g`.
     Normal(usize, usize),
     /// `randn(n)`: the Gaussians themselves.
     Randn,
@@ -386,7 +386,7 @@ impl Program {
     }
 
     /// Evaluates the nodes of `phase`, in order. `random` is needed iff one of them draws.
-    pub fn eval(&mut self, phase: Phase, state: &State<'_>, mut random: Option<&mut RandomState>) {
+    pub fn eval(&mut self, phase: Phase, state: &State<'_>, mut random: Option<&mut Random>) {
         for i in 0..self.nodes.len() {
             if self.nodes[i].phase == phase {
                 self.eval_node(i, Some(state), random.as_deref_mut());
@@ -399,7 +399,7 @@ impl Program {
         &mut self,
         range: std::ops::Range<usize>,
         state: &State<'_>,
-        mut random: Option<&mut RandomState>,
+        mut random: Option<&mut Random>,
     ) {
         for i in range {
             self.eval_node(i, Some(state), random.as_deref_mut());
@@ -408,7 +408,7 @@ impl Program {
 
     /// Evaluates node `i` (its inputs are current). `state` is only read by nodes that read
     /// the simulation; constant folding passes None for nodes of constants.
-    fn eval_node(&mut self, i: usize, state: Option<&State<'_>>, random: Option<&mut RandomState>) {
+    fn eval_node(&mut self, i: usize, state: Option<&State<'_>>, random: Option<&mut Random>) {
         let (off, len) = (self.nodes[i].off, self.nodes[i].len);
         {
             match &self.nodes[i].op {
@@ -553,6 +553,9 @@ pub(crate) struct Model<'a> {
 /// another).
 pub(crate) type Defines = BTreeMap<String, (String, Expr)>;
 
+/// Definitions may use definitions this deep (binding recurses through them).
+const MAX_DEFINE_DEPTH: usize = 64;
+
 /// Binds expressions into one [`Program`], each define once per phase.
 pub(crate) struct Binder<'a> {
     pub prog: &'a mut Program,
@@ -612,6 +615,35 @@ fn array(name: &str) -> Option<(Src, MjtObjBase)> {
         _ => return None,
     })
 }
+
+/// The names an expression gives a meaning of its own (constants, the step's action and
+/// time, the state arrays, the operators' words): a definition may not take one.
+pub(crate) const BUILTIN_NAMES: &[&str] = &[
+    "pi",
+    "e",
+    "inf",
+    "dt",
+    "timestep",
+    "nq",
+    "nv",
+    "nu",
+    "nbody",
+    "time",
+    "action",
+    "qpos",
+    "qvel",
+    "qacc",
+    "qfrc_constraint",
+    "qfrc_actuator",
+    "ctrl",
+    "act",
+    "actuator_force",
+    "sensordata",
+    "sensor",
+    "and",
+    "or",
+    "not",
+];
 
 /// Every function a file may call, for the "unknown function" message.
 pub(crate) const FUNCTIONS: &[&str] = &[
@@ -706,15 +738,27 @@ fn count(m: &MjModel, k: MjtObjBase) -> usize {
     }) as usize
 }
 
-/// The names of every object of a kind, for error messages.
+/// The names of the objects of a kind, for error messages (the first 50; a line stays
+/// readable for a large model).
 pub(crate) fn names(m: &MjModel, k: MjtObjBase) -> String {
-    let v: Vec<String> = (0..count(m, k))
+    const SHOWN: usize = 50;
+    let n = count(m, k);
+    let v: Vec<String> = (0..n.min(SHOWN))
         .map(|i| m.id_to_name(k, i).unwrap_or("(unnamed)").to_string())
         .collect();
-    if v.is_empty() {
-        format!("the model has no {}s", kind_name(k))
+    let more = if n > SHOWN {
+        format!(", and {} more", n - SHOWN)
     } else {
-        format!("{}s: {}", kind_name(k), v.join(", "))
+        String::new()
+    };
+    let kinds = match kind_name(k) {
+        "body" => "bodies".to_string(),
+        kind => format!("{kind}s"),
+    };
+    if v.is_empty() {
+        format!("the model has no {kinds}")
+    } else {
+        format!("{kinds}: {}{more}", v.join(", "))
     }
 }
 
@@ -1091,6 +1135,15 @@ impl<'a> Binder<'a> {
         if let Some(&i) = self.memo.get(&key) {
             return Ok(i);
         }
+        if self.stack.len() >= MAX_DEFINE_DEPTH {
+            return Err(BindError::at(
+                p,
+                format!(
+                    "definitions nested deeper than {MAX_DEFINE_DEPTH} (`{n}` inside {})",
+                    self.stack.join(" -> ")
+                ),
+            ));
+        }
         if self.stack.iter().any(|s| s == n) {
             return Err(BindError::at(
                 p,
@@ -1101,16 +1154,19 @@ impl<'a> Binder<'a> {
             ));
         }
         self.stack.push(n.to_string());
-        // An error inside the definition points into the definition's text.
+        // An error inside the definition points into the definition's text (the innermost
+        // definition's, with the chain of names that led there).
+        const CONTEXT: &str = "in the definition of ";
         let r = self.bind(e).map_err(|err| BindError {
             pos: Some(p),
-            message: match err.pos {
-                Some(q) => format!(
-                    "in the definition of `{n}` (\"{src}\", at character {}): {}",
+            message: match (err.message.strip_prefix(CONTEXT), err.pos) {
+                (Some(inner), _) => format!("{CONTEXT}`{n}` -> {inner}"),
+                (None, Some(q)) => format!(
+                    "{CONTEXT}`{n}` (\"{src}\", at character {}): {}",
                     q + 1,
                     err.message
                 ),
-                None => format!("in the definition of `{n}` (\"{src}\"): {}", err.message),
+                (None, None) => format!("{CONTEXT}`{n}` (\"{src}\"): {}", err.message),
             },
         });
         self.stack.pop();
@@ -1568,7 +1624,7 @@ impl<'a> Binder<'a> {
                 if v.fract() != 0.0 || !(1.0..=1e6).contains(&v) {
                     return Err(BindError::at(
                         e.pos(),
-                        format!("size {v} must be a whole number >= 1"),
+                        format!("size {v} must be a whole number from 1 to 10^6"),
                     ));
                 }
                 v as usize
