@@ -34,7 +34,7 @@ pub struct Sizes {
 /// file may ask for: beyond them one instantiation would need more memory than a host has
 /// (the replay alone is `2 obs + act + 4` floats a transition) or a build would take hours.
 pub const LIMITS: Sizes = Sizes {
-    obs: 4096,
+    obs: 1024,
     act: 64,
     actor: [4096, 4096],
     critic: [4096, 4096],
