@@ -34,7 +34,8 @@ pub fn tasks_listing(files: &[PathBuf]) -> String {
     for f in files {
         match TaskDef::from_file(f) {
             Ok(t) => push_task(&mut s, &t, true),
-            Err(e) => s.push_str(&format!("{}: {e}\n", f.display())),
+            // The error names the file.
+            Err(e) => s.push_str(&format!("{e}\n")),
         }
     }
     s.push_str(
