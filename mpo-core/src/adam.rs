@@ -160,7 +160,13 @@ impl AdamState {
     ) {
         let c1 = 1.0 / (1.0 - self.beta1_pow);
         let c2 = 1.0 / (1.0 - self.beta2_pow);
-        for i in 0..p.len() {
+        // Every slice cut to the parameters' length first: with the bounds checked once, the
+        // loop vectorises (elementwise, every lane the same operations: the same bits). With a
+        // check per element it ran scalar, 6% of a suite row's update in instructions
+        // (docs/core.md, "Where the time goes").
+        let n = p.len();
+        let (g, m, v) = (&g[..n], &mut m[..n], &mut v[..n]);
+        for i in 0..n {
             let gi = g[i] * scale;
             m[i] = flush_subnormal(cfg.beta1 * m[i] + (1.0 - cfg.beta1) * gi);
             v[i] = flush_subnormal(cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (gi * gi));

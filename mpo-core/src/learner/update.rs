@@ -101,6 +101,8 @@ impl<
     /// Every row's work that needs only the target networks and the online critic: the
     /// E-step samples and their values, the policy-evaluation target, the online critic's
     /// forward pass and its gradient down to the hidden layers. Then the row statistics.
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
     fn evaluate_and_sample<P: Parallel>(
         &mut self,
         par: &P,
@@ -162,6 +164,8 @@ impl<
     }
 
     /// The critic's weight gradients (by parameter blocks), clipping and one Adam step.
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
     fn critic_step<P: Parallel>(
         &mut self,
         par: &P,
@@ -228,6 +232,8 @@ impl<
     }
 
     /// Temperatures, weights and the per-state sample statistics of the M-step.
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
     fn e_step<P: Parallel>(&mut self, par: &P, stats: &mut UpdateStats) -> Result<(), UpdateError> {
         let cfg = self.cfg;
         let sol = solve_temperature_with(
@@ -273,6 +279,8 @@ impl<
 
     /// One M-step iteration: the actor's gradient (rows, then parameter blocks), clipping,
     /// one Adam step, then one step of the multipliers.
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
     fn m_step<P: Parallel>(&mut self, par: &P, stats: &mut UpdateStats) -> Result<(), UpdateError> {
         let cfg = self.cfg;
         self.live.actor.transpose_into(&mut self.grads.at);
@@ -331,6 +339,8 @@ impl<
 
     /// The actor's weight gradients by parameter blocks from the chunks' tapes; returns the
     /// global norm (before clipping).
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
     fn actor_gradient<P: Parallel>(&mut self, par: &P) -> f32 {
         let (chunks, batch, shared) = (&self.chunks, &self.batch, self.cfg.shared_samples);
         let obs: [&[[f32; OBS]]; C] = core::array::from_fn(|c| {
@@ -369,6 +379,8 @@ impl<
 
     /// The summed dual terms of every chunk at `eta` (of the penalty objective when
     /// `penalty`), computed by `par` and added in batch order.
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
     fn dual_sums<P: Parallel>(&mut self, par: &P, eta: f64, penalty: bool) -> DualSums {
         par.for_each(&mut self.chunks, &|_, ch| ch.estep.dual_rows(eta, penalty));
         let mut s = DualSums::default();
