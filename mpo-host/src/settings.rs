@@ -62,7 +62,7 @@ pub struct Schedule {
     /// `r - c * sum_k (a_k - clip(a_k, -1, 1))^2`; 0 (the default everywhere) stores the
     /// environment's reward. The learner's own remedy for out-of-range actions is
     /// `mpo.action_penalization`; this scalarised form is kept for comparison
-    /// (docs/training.md). Evaluation returns are always the environment's rewards.
+    /// (docs/experiments.md). Evaluation returns are always the environment's rewards.
     pub action_penalty: f64,
     /// Correlation in `[0, 1)` of the exploration noise between consecutive steps of an
     /// episode (`mpo_core::agent::AgentSchedule::noise_corr`): 0 = independent draws (the
