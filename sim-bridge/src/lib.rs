@@ -42,7 +42,7 @@ pub mod taskfile;
 
 pub use env::SuiteEnv;
 pub use error::{SETUP_COMMAND, SimError};
-pub use taskfile::{Origin, TaskDef};
+pub use taskfile::{ExternalDef, Origin, TaskDef};
 
 /// The fixed shape of a task.
 #[derive(Clone, Debug, PartialEq)]
