@@ -8,8 +8,9 @@
 mod common;
 use common::*;
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn root() -> PathBuf {
@@ -171,6 +172,18 @@ fn pendulum_in_python_trains_with_the_same_bits_twice_and_evaluates_from_its_che
         std::thread::sleep(Duration::from_millis(20));
     }
 
+    // `mpo run` in lockstep: its first episode is the evaluation's.
+    let run = ok_json(&mpo(&[
+        "run",
+        "--checkpoint",
+        b.to_str().unwrap(),
+        "--lockstep",
+        "--steps",
+        "200",
+        "--no-progress",
+    ]));
+    assert_eq!(run["returns"][0], rb["eval_return_mean"]);
+
     // A plant without a model cannot be drawn: one clear line, no plant started.
     let out = mpo(&[
         "render",
@@ -257,4 +270,50 @@ fn a_plant_that_dies_mid_run_stops_training_and_the_last_checkpoint_stays() {
         "--no-progress",
     ]));
     assert_eq!(r["env_steps"], 600);
+}
+
+#[test]
+fn a_killed_learner_takes_its_plant_program_and_the_runs_files_with_it() {
+    let dir = scratch("external-kill");
+    let file = task_file(&dir, "pendulum-gym", 3, &gym_command());
+    let mut learner = Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args([
+            "train",
+            "--task-file",
+            file.to_str().unwrap(),
+            "--net",
+            "test",
+        ])
+        .args(["--steps", "100000", "--no-progress", "--out"])
+        .arg(dir.join("run"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(learner.stderr.take().unwrap()).lines();
+    let line = lines
+        .by_ref()
+        .map(|l| l.unwrap())
+        .find(|l| l.contains("connected (run id"))
+        .expect("the plant connects");
+    let pid = line
+        .rsplit("pid ")
+        .next()
+        .unwrap()
+        .trim_end_matches(')')
+        .to_string();
+    let id = run_id(&line);
+    // SIGKILL: no BYE, no cleanup by the learner.
+    learner.kill().unwrap();
+    learner.wait().unwrap();
+    let t0 = Instant::now();
+    while Path::new(&format!("/proc/{pid}")).exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "the plant outlived its learner"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // The plant cleared the dead learner's resources and its own on the way out.
+    assert!(files_of(&id).is_empty(), "left behind: {:?}", files_of(&id));
 }

@@ -36,6 +36,7 @@ class _Ports:
         import iceoryx2 as iox2
 
         self.iox2 = iox2
+        self.run = run
         iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
         cfg = iox2.config.default()
         cfg.global_cfg.prefix = iox2.FileName.new(p.file_prefix(run))
@@ -79,6 +80,24 @@ class _Ports:
         self.listen = event("to-plant").listener_builder().create()
         self.notify = event("to-learner").notifier_builder().create()
 
+    def close(self):
+        """Releases the ports and the node, clears what a killed learner left, and removes
+        the run's last file (iceoryx2's node counter) when nobody else holds the run."""
+        self.node.try_cleanup_dead_nodes()
+        for port in (self.requests, self.replies, self.listen, self.notify):
+            port.delete()
+        del self.requests, self.replies, self.listen, self.notify, self.node
+        import gc
+
+        gc.collect()
+        files = _run_files(self.run)
+        if files and all(f.endswith(".global_mgmt") for f in files):
+            for f in files:
+                try:
+                    os.remove(f)
+                except OSError:
+                    pass
+
     def receive(self, timeout_s: float):
         """The next request as (header copy, payload copy), or None after `timeout_s`."""
         sample = self.requests.receive()
@@ -113,6 +132,19 @@ class _Ports:
             ctypes.memmove(sample.payload_ptr, values.ctypes.data, values.nbytes)
         sample.assume_init().send()
         self.notify.notify()
+
+
+def _run_files(run):
+    """Every file of the run under /dev/shm and /tmp/iceoryx2 (the Rust side's
+    `RunId::files`)."""
+    prefix = p.file_prefix(run)
+    out = []
+    for top in ("/dev/shm", "/tmp/iceoryx2"):
+        for dirpath, dirnames, filenames in os.walk(top):
+            out += [os.path.join(dirpath, n) for n in filenames + dirnames if prefix in n]
+            if top == "/dev/shm":
+                dirnames.clear()
+    return out
 
 
 def _parent_gone(parent) -> bool:
@@ -164,106 +196,125 @@ def serve(
         raise SystemExit("mpo_plant: no run id: pass --run RUN_ID or set MPO_PLANT_RUN")
     parent = os.environ.get("MPO_PLANT_PARENT")
     parent = int(parent) if parent else None
-    first = make_env()
-    obs_size, act_size, bounds, steps, name = _sizes(first)
-    ports = _Ports(run, max(obs_size, 2 * act_size))
-    envs = {}
-    # The plant made for the sizes serves the first instance (a robot's only one).
-    unused = [first]
-    served_hello = False
-    last_request = time.monotonic()
-    while True:
-        got = ports.receive(0.1)
-        if got is None:
-            if _parent_gone(parent):
-                print("mpo_plant: the learner is gone; exiting", file=log)
-                break
-            if idle_timeout is not None and time.monotonic() - last_request > idle_timeout:
-                print(f"mpo_plant: no request for {idle_timeout} s; exiting", file=log)
-                break
-            continue
+    server = _Server(make_env, run, single_instance, log)
+    try:
         last_request = time.monotonic()
-        req, payload = got
+        while True:
+            got = server.ports.receive(0.1)
+            if got is None:
+                if _parent_gone(parent):
+                    print("mpo_plant: the learner is gone; exiting", file=log)
+                    break
+                idle = time.monotonic() - last_request
+                if idle_timeout is not None and idle > idle_timeout:
+                    print(f"mpo_plant: no request for {idle_timeout} s; exiting", file=log)
+                    break
+                continue
+            last_request = time.monotonic()
+            if not server.handle(*got) and not keep_serving:
+                break
+    finally:
+        server.close()
+
+
+class _Server:
+    """The plant instances of one run and the answers to each request."""
+
+    def __init__(self, make_env, run, single_instance, log):
+        self.make_env, self.run, self.single, self.log = make_env, run, single_instance, log
+        # The plant made for the sizes serves the first instance (a robot's only one).
+        self.first = make_env()
+        self.obs_size, self.act_size, self.bounds, self.steps, self.name = _sizes(self.first)
+        self.unused = [self.first]
+        self.envs = {}
+        self.greeted = False
+        self.ports = _Ports(run, max(self.obs_size, 2 * self.act_size))
+
+    def handle(self, req, payload) -> bool:
+        """Answers one request; False after BYE."""
         kind = req.kind
         if kind == p.KIND_HELLO:
-            if not served_hello:
-                task = p.text_of(req.task)
-                print(
-                    f"mpo_plant: serving {name} (obs {obs_size}, act {act_size}) to task "
-                    f"{task} (obs {req.obs_len}, act {req.act_len}), run {run}",
-                    file=log,
-                    flush=True,
-                )
-                served_hello = True
-            ports.reply(
-                req,
-                bounds,
-                obs_len=obs_size,
-                act_len=act_size,
-                episode_steps=steps,
-                version=p.PROTOCOL_VERSION,
-                message=name,
-            )
+            self.hello(req)
         elif kind in (p.KIND_RESET, p.KIND_STEP):
             try:
-                if kind == p.KIND_RESET and req.env not in envs:
-                    if not req.flags & p.RESET_FRESH:
-                        raise PlantFailed(f"instance {req.env} was never reset fresh")
-                    if single_instance:
-                        envs[req.env] = first
-                    else:
-                        envs[req.env] = unused.pop() if unused else make_env()
-                values, fields = _serve_one(req, payload, envs.get(req.env))
-                if len(values) != obs_size:
-                    what = "reset" if kind == p.KIND_RESET else "step"
-                    raise PlantFailed(
-                        f"{what} returned an observation of {len(values)} values; the plant "
-                        f"declared obs_size = {obs_size}"
-                    )
+                values, fields = self.episode(req, payload)
             except Exception as e:  # noqa: BLE001 - every failure goes back as text
-                traceback.print_exc(file=log)
-                ports.reply(req, status=p.STATUS_ERROR, message=f"{type(e).__name__}: {e}")
-                continue
-            ports.reply(req, values, **fields)
+                traceback.print_exc(file=self.log)
+                self.ports.reply(req, status=p.STATUS_ERROR, message=f"{type(e).__name__}: {e}")
+                return True
+            self.ports.reply(req, values, **fields)
         elif kind == p.KIND_CLOSE:
-            env = envs.pop(req.env, None)
-            if env is not None and not single_instance:
+            env = self.envs.pop(req.env, None)
+            if env is not None and not self.single:
                 _close(env)
         elif kind == p.KIND_BYE:
-            if not single_instance:
-                for env in envs.values():
+            if not self.single:
+                for env in self.envs.values():
                     _close(env)
-            envs.clear()
-            served_hello = False
-            if not keep_serving:
-                break
-    left = [*envs.values(), *unused, *([first] if single_instance else [])]
-    for env in {id(e): e for e in left}.values():
-        _close(env)
+            self.envs.clear()
+            self.greeted = False
+            return False
+        return True
+
+    def hello(self, req):
+        if not self.greeted:
+            print(
+                f"mpo_plant: serving {self.name} (obs {self.obs_size}, act {self.act_size}) "
+                f"to task {p.text_of(req.task)} (obs {req.obs_len}, act {req.act_len}), "
+                f"run {self.run}",
+                file=self.log,
+                flush=True,
+            )
+            self.greeted = True
+        self.ports.reply(
+            req,
+            self.bounds,
+            obs_len=self.obs_size,
+            act_len=self.act_size,
+            episode_steps=self.steps,
+            version=p.PROTOCOL_VERSION,
+            message=self.name,
+        )
+
+    def episode(self, req, payload):
+        """RESET or STEP of one instance: (observation, reply fields)."""
+        if req.kind == p.KIND_RESET and req.env not in self.envs:
+            if not req.flags & p.RESET_FRESH:
+                raise PlantFailed(f"instance {req.env} was never reset fresh")
+            if self.single:
+                self.envs[req.env] = self.first
+            else:
+                self.envs[req.env] = self.unused.pop() if self.unused else self.make_env()
+        env = self.envs.get(req.env)
+        if env is None:
+            raise PlantFailed(f"STEP of instance {req.env} before its RESET")
+        if req.kind == p.KIND_RESET:
+            fresh = bool(req.flags & p.RESET_FRESH)
+            obs, fields = env.reset(int(req.seed) if fresh else None), {}
+        else:
+            obs, reward, terminated, truncated = env.step(payload)
+            fields = {
+                "reward": float(reward),
+                "discount": 0.0 if terminated else 1.0,
+                "last": 1 if (terminated or truncated) else 0,
+            }
+        values = np.asarray(obs, dtype=np.float64).ravel()
+        if len(values) != self.obs_size:
+            what = "reset" if req.kind == p.KIND_RESET else "step"
+            raise PlantFailed(
+                f"{what} returned an observation of {len(values)} values; the plant declared "
+                f"obs_size = {self.obs_size}"
+            )
+        return values, fields
+
+    def close(self):
+        left = [*self.envs.values(), *self.unused, *([self.first] if self.single else [])]
+        for env in {id(e): e for e in left}.values():
+            _close(env)
+        self.ports.close()
 
 
 def _close(env):
     close = getattr(env, "close", None)
     if close is not None:
         close()
-
-
-def _serve_one(req, payload, env):
-    """RESET or STEP of one instance: (observation, reply fields)."""
-    if env is None:
-        raise PlantFailed(f"STEP of instance {req.env} before its RESET")
-    if req.kind == p.KIND_RESET:
-        fresh = bool(req.flags & p.RESET_FRESH)
-        obs = env.reset(int(req.seed) if fresh else None)
-        return _observation(obs), {}
-    obs, reward, terminated, truncated = env.step(payload)
-    fields = {
-        "reward": float(reward),
-        "discount": 0.0 if terminated else 1.0,
-        "last": 1 if (terminated or truncated) else 0,
-    }
-    return _observation(obs), fields
-
-
-def _observation(obs):
-    return np.asarray(obs, dtype=np.float64).ravel()
