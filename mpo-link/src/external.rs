@@ -72,6 +72,18 @@ pub const KIND_CLOSE: u32 = 4;
 /// Request: the run is over (no reply).
 pub const KIND_BYE: u32 = 5;
 
+/// The name of a request kind, for messages.
+pub fn kind_name(kind: u32) -> &'static str {
+    match kind {
+        KIND_HELLO => "HELLO",
+        KIND_RESET => "RESET",
+        KIND_STEP => "STEP",
+        KIND_CLOSE => "CLOSE",
+        KIND_BYE => "BYE",
+        _ => "an unknown request",
+    }
+}
+
 /// RESET flag: a fresh environment instance; reset it with `seed` (Gymnasium's
 /// `env.reset(seed=seed)`). Without it the instance continues its own random stream
 /// (`env.reset()`).
@@ -309,6 +321,11 @@ fn slice_service<H: core::fmt::Debug + ZeroCopySend>(
         })
 }
 
+/// `what: <iceoryx2's error>` (its errors are reported, never matched on).
+fn fail<E: core::fmt::Debug>(what: &str) -> impl FnOnce(E) -> PlantError + '_ {
+    move |e| PlantError(format!("{what}: {e:?}"))
+}
+
 fn service_name(run: &RunId, leaf: &str) -> Result<ServiceName, PlantError> {
     ServiceName::new(&format!("mpo/{}/plant/{leaf}", run.as_str()))
         .map_err(|e| PlantError(format!("service name: {e:?}")))
@@ -316,26 +333,23 @@ fn service_name(run: &RunId, leaf: &str) -> Result<ServiceName, PlantError> {
 
 impl Ports {
     fn open(run: &RunId, max_request_len: usize) -> Result<Self, PlantError> {
-        let e = |what: &'static str| {
-            move |err: &dyn core::fmt::Debug| PlantError(format!("{what}: {err:?}"))
-        };
         iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
         let cfg = run.config().map_err(|x| PlantError(x.0))?;
         let node = NodeBuilder::new()
             .config(&cfg)
-            .name(&NodeName::new("mpo-learner").map_err(|x| e("node name")(&x))?)
+            .name(&NodeName::new("mpo-learner").map_err(fail("node name"))?)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Svc>()
-            .map_err(|x| e("node")(&x))?;
+            .map_err(fail("node"))?;
         let request = slice_service::<PlantRequest>(&node, run, "request")?
             .publisher_builder()
             .initial_max_slice_len(max_request_len.max(1))
             .create()
-            .map_err(|x| e("request publisher")(&x))?;
+            .map_err(fail("request publisher"))?;
         let reply = slice_service::<PlantReply>(&node, run, "reply")?
             .subscriber_builder()
             .create()
-            .map_err(|x| e("reply subscriber")(&x))?;
+            .map_err(fail("reply subscriber"))?;
         let event = |leaf: &str| {
             node.service_builder(&service_name(run, leaf)?)
                 .event()
@@ -347,11 +361,11 @@ impl Ports {
         let notify = event("to-plant")?
             .notifier_builder()
             .create()
-            .map_err(|x| e("notifier")(&x))?;
+            .map_err(fail("notifier"))?;
         let listen = event("to-learner")?
             .listener_builder()
             .create()
-            .map_err(|x| e("listener")(&x))?;
+            .map_err(fail("listener"))?;
         Ok(Self {
             request,
             reply,
@@ -535,8 +549,17 @@ impl ExternalPlant {
         label: &str,
     ) -> Result<Self, PlantError> {
         let label = format!("{label} (external plant, run id {})", run.as_str());
-        let fail = |e: PlantError| PlantError(format!("{label}: {}", e.0));
-        let ports = Ports::open(&run, 2 * expected.act).map_err(fail)?;
+        let ports = match Ports::open(&run, 2 * expected.act) {
+            Ok(p) => p,
+            Err(e) => {
+                // No connection: a started program has nobody to serve.
+                if let Some(mut s) = spawned {
+                    s.stop(Duration::ZERO);
+                }
+                run.remove_if_last();
+                return Err(PlantError(format!("{label}: {}", e.0)));
+            }
+        };
         let mut p = Self {
             ports: Some(ports),
             run,
@@ -607,7 +630,7 @@ impl ExternalPlant {
             })?;
             // Resent every 200 ms: the plant may subscribe after the first one went out.
             let resend = (monotonic_ns() + 200_000_000).min(deadline);
-            match self.await_reply(seq, resend, "HELLO") {
+            match self.await_reply(seq, KIND_HELLO, resend) {
                 Ok(()) => break,
                 Err(Wait::Timeout) if monotonic_ns() < deadline => continue,
                 Err(Wait::Timeout) => {
@@ -684,15 +707,9 @@ impl ExternalPlant {
         fresh: bool,
         obs: &mut [f64],
     ) -> Result<(), PlantError> {
-        self.request(
-            KIND_RESET,
-            env,
-            seed,
-            if fresh { RESET_FRESH } else { 0 },
-            &[],
-            "RESET",
-        )?;
-        self.take_observation(obs, "RESET")
+        let flags = if fresh { RESET_FRESH } else { 0 };
+        self.request(KIND_RESET, env, seed, flags, &[])?;
+        self.take_observation(obs, KIND_RESET)
     }
 
     /// One step of instance `env` with `action` (in the plant's units); writes the next
@@ -710,8 +727,8 @@ impl ExternalPlant {
                 self.expected.act
             )));
         }
-        self.request(KIND_STEP, env, 0, 0, action, "STEP")?;
-        self.take_observation(obs, "STEP")?;
+        self.request(KIND_STEP, env, 0, 0, action)?;
+        self.take_observation(obs, KIND_STEP)?;
         let h = &self.header;
         if !h.reward.is_finite() || !(h.discount == 0.0 || h.discount == 1.0) {
             return Err(self.err(format!(
@@ -733,7 +750,8 @@ impl ExternalPlant {
         let _ = self.send(KIND_CLOSE, env, 0, 0, &[], |_| {});
     }
 
-    fn take_observation(&mut self, obs: &mut [f64], what: &str) -> Result<(), PlantError> {
+    fn take_observation(&mut self, obs: &mut [f64], kind: u32) -> Result<(), PlantError> {
+        let what = kind_name(kind);
         if self.payload.len() != obs.len() {
             return Err(self.err(format!(
                 "the plant answered {what} with an observation of {} values, the task file says obs = {}",
@@ -763,13 +781,13 @@ impl ExternalPlant {
         seed: u64,
         flags: u32,
         payload: &[f64],
-        what: &str,
     ) -> Result<(), PlantError> {
         self.seq += 1;
         let seq = self.seq;
         self.send(kind, env, seed, flags, payload, |_| {})?;
         let deadline = monotonic_ns() + self.opts.timeout.as_nanos() as u64;
-        match self.await_reply(seq, deadline, what) {
+        let what = kind_name(kind);
+        match self.await_reply(seq, kind, deadline) {
             Ok(()) => Ok(()),
             Err(Wait::Failed(e)) => Err(e),
             Err(Wait::Timeout) => Err(self.err(format!(
@@ -819,7 +837,8 @@ impl ExternalPlant {
 
     /// Waits until the reply to `seq` arrives (copied into `self.header` and `self.payload`),
     /// the plant reports an error, its process exits, or `deadline_ns` passes.
-    fn await_reply(&mut self, seq: u64, deadline_ns: u64, what: &str) -> Result<(), Wait> {
+    fn await_reply(&mut self, seq: u64, kind: u32, deadline_ns: u64) -> Result<(), Wait> {
+        let what = kind_name(kind);
         loop {
             loop {
                 let sample = match self.ports().reply.receive() {
@@ -852,7 +871,7 @@ impl ExternalPlant {
                         self.err(format!("the plant failed {what}: {}", text_of(&h.message))),
                     ));
                 }
-                if h.kind != self.kind_of(what) {
+                if h.kind != kind {
                     return Err(Wait::Failed(self.err(format!(
                         "the plant answered {what} with a reply of kind {}",
                         h.kind
@@ -870,14 +889,6 @@ impl ExternalPlant {
                 return Err(Wait::Timeout);
             }
             wait_for_event(&self.ports().listen, left.min(SLICE));
-        }
-    }
-
-    fn kind_of(&self, what: &str) -> u32 {
-        match what {
-            "HELLO" => KIND_HELLO,
-            "RESET" => KIND_RESET,
-            _ => KIND_STEP,
         }
     }
 }
