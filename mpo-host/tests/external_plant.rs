@@ -200,18 +200,26 @@ fn pendulum_in_python_trains_with_the_same_bits_twice_and_evaluates_from_its_che
 #[test]
 fn a_plant_of_other_sizes_is_refused_before_anything_is_written() {
     let dir = scratch("external-sizes");
-    let file = task_file(&dir, "pendulum-obs4", 4, &gym_command());
+    // The task file's sizes are the learner's (a build has it); the plant declares obs 4.
+    let fixture = root().join("mpo-link/tests/fixtures/faulty_plant.py");
+    let command = [
+        python(),
+        fixture.display().to_string(),
+        "--obs".into(),
+        "4".into(),
+    ];
+    let file = task_file(&dir, "toy-obs4", 3, &command);
     let out = dir.join("run");
     let e = err_text(&train(&file, &out, "1", &[]));
     assert_eq!(
-        e.trim().lines().filter(|l| l.starts_with("error:")).count(),
+        e.lines().filter(|l| l.starts_with("error:")).count(),
         1,
         "{e}"
     );
     for part in [
-        "pendulum-obs4.toml",
-        "`gymnasium Pendulum-v1` has observation size 3 and action size 1",
-        "the task file says obs = 4, act = 1",
+        "toy-obs4.toml",
+        "the plant `faulty toy` has observation size 4 and action size 1",
+        "the task file says obs = 3, act = 1",
     ] {
         assert!(e.contains(part), "`{part}` missing from: {e}");
     }
