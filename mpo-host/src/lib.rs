@@ -19,6 +19,7 @@ pub mod link;
 pub mod metrics;
 pub mod outage_log;
 pub mod outputs;
+pub mod plant;
 pub mod plot;
 pub mod policy;
 pub mod pool;

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use hdrhistogram::Histogram;
 use mpo_link::service::monotonic_ns;
 use serde::{Deserialize, Serialize};
-use sim_bridge::{Environment, SimError, TaskDef};
+use sim_bridge::{SimError, TaskDef};
 
 use crate::eval::{eval_env_seed, mean_std};
 use crate::link::{
@@ -400,7 +400,7 @@ fn episodes(
         (Limit::Seconds(_), b) => stepping >= b.expect("seconds limit"),
     };
     'episodes: for episode in 0u32.. {
-        let mut env = req.task.make(eval_env_seed(req.seed, episode))?;
+        let mut env = crate::plant::make(&req.task, eval_env_seed(req.seed, episode))?;
         env.reset(&mut obs64);
         let (mut ret, mut episode_step) = (0.0, 0u32);
         let started = Instant::now();

@@ -148,7 +148,7 @@ impl<
                 agent_schedule(settings),
             )
             .map_err(|e| crate::settings::SettingsError::Invalid(format!("mpo: {e}")))?;
-        let mut env: Box<dyn Environment> = Box::new(task.make(settings.seed)?);
+        let mut env: Box<dyn Environment> = crate::plant::make(task, settings.seed)?;
         let (mut episodes, mut stats) = (0, StatsAccumulator::default());
         let mut obs64 = [0f64; OBS];
         if let Some(v) = resume {
