@@ -31,24 +31,56 @@ const LANES: usize = 8;
 /// Samples per tile of the batch forward kernel: 4 x 3 accumulators, 3 weight registers and
 /// one broadcast fill the 16 AVX2 registers (measured best of 4x16, 5x16, 6x16, 8x8, 3x32,
 /// 2x32 on this machine).
+#[cfg(not(target_arch = "arm"))]
 const TILE_N: usize = 4;
+/// Output vectors (of [`LANES`]) per strip of the batch kernels: 3 (twelve AVX2 accumulators).
+#[cfg(not(target_arch = "arm"))]
+const STRIP: usize = 3;
 /// Samples per tile of the narrow-output kernel.
 const TILE_N_NARROW: usize = 8;
 /// Input rows per tile of the weight-gradient kernel (same register budget).
-#[cfg(feature = "train")]
+#[cfg(all(feature = "train", not(target_arch = "arm")))]
 const TILE_I: usize = 4;
 /// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
 /// enough to hide the FMA latency.
+#[cfg(not(target_arch = "arm"))]
 const CHUNK_1: usize = 64;
+
+// A Cortex-M4F has 32 single-precision registers and no SIMD: tiles of 2 samples (input rows)
+// by 8 outputs keep 16 accumulators, 8 weights and the inputs in registers (the x86 tiles, 96
+// accumulators, spill every one of them to the stack), and the single-sample kernel keeps 16
+// accumulators. Every output is still summed in the same order, so the bits are the same
+// (tests/cortex_m.rs, mpo-host/tests/device.rs); only the instruction count changes
+// (benches/cortex_m.rs).
+#[cfg(target_arch = "arm")]
+const TILE_N: usize = 2;
+#[cfg(target_arch = "arm")]
+const STRIP: usize = 1;
+#[cfg(all(feature = "train", target_arch = "arm"))]
+const TILE_I: usize = 2;
+#[cfg(target_arch = "arm")]
+const CHUNK_1: usize = 16;
 
 /// `a * b + c` with one rounding (IEEE 754 fusedMultiplyAdd).
 ///
 /// On x86-64 builds with the `fma` target feature (the workspace's x86-64-v3 host target) this
-/// is the FMA instruction, which the compiler vectorises; elsewhere (the baseline target of the
-/// freestanding binaries, microcontrollers) it is `libm::fmaf`, correctly rounded in software
-/// or with the instruction when the CPU has one. Both give the same bits for the same inputs.
+/// is the FMA instruction, which the compiler vectorises; on a Cortex-M with an FPU (every
+/// M-profile FPU, FPv4-SP onwards, has it) the `vfma.f32` instruction; elsewhere (the baseline
+/// target of the x86-64 freestanding binaries) `libm::fmaf`, correctly rounded in software.
+/// All give the same bits for the same inputs (tests/cortex_m.rs runs the Cortex-M4F build).
 #[inline(always)]
 pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+    #[cfg(all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    ))]
+    {
+        // Stable Rust has no fused multiply-add in `core`, and its inline assembly offers no FPU
+        // register on this target; the Cortex-M build is a nightly-feature build anyway (it
+        // builds `core` from source), so `core`'s unstable one, which is the instruction.
+        core::f32::math::mul_add(a, b, c)
+    }
     #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
     {
         use core::arch::x86_64::{_mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss};
@@ -60,9 +92,39 @@ pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
             _mm_cvtss_f32(_mm_fmadd_ss(_mm_set_ss(a), _mm_set_ss(b), _mm_set_ss(c)))
         }
     }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
+    #[cfg(not(any(
+        all(target_arch = "x86_64", target_feature = "fma"),
+        all(
+            target_arch = "arm",
+            target_feature = "mclass",
+            target_feature = "fpregs"
+        )
+    )))]
     {
         libm::fmaf(a, b, c)
+    }
+}
+
+/// The square root, correctly rounded (so the same bits everywhere): on a Cortex-M with an FPU
+/// the `vsqrt.f32` instruction, elsewhere `libm::sqrtf` (which uses the instruction on x86).
+/// For the hot loops (Adam: one per parameter per update).
+#[inline(always)]
+pub fn sqrt(x: f32) -> f32 {
+    #[cfg(all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    ))]
+    {
+        core::f32::math::sqrt(x)
+    }
+    #[cfg(not(all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    )))]
+    {
+        libm::sqrtf(x)
     }
 }
 
@@ -215,15 +277,15 @@ pub(crate) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
     y: &mut [[f32; O]],
     mut o0: usize,
 ) {
-    while o0 + 3 * LANES <= O {
-        accumulate_strip::<I, O, 3, RELU>(x, w, start, y, o0);
-        o0 += 3 * LANES;
+    while o0 + STRIP * LANES <= O {
+        accumulate_strip::<I, O, STRIP, RELU>(x, w, start, y, o0);
+        o0 += STRIP * LANES;
     }
-    if o0 + 2 * LANES <= O {
+    if STRIP > 2 && o0 + 2 * LANES <= O {
         accumulate_strip::<I, O, 2, RELU>(x, w, start, y, o0);
         o0 += 2 * LANES;
     }
-    if o0 + LANES <= O {
+    if STRIP > 1 && o0 + LANES <= O {
         accumulate_strip::<I, O, 1, RELU>(x, w, start, y, o0);
         o0 += LANES;
     }
@@ -450,15 +512,15 @@ pub(crate) fn weight_grad_from<const I: usize, const O: usize>(
     gw: &mut [[f32; O]],
     mut o0: usize,
 ) {
-    while o0 + 3 * LANES <= O {
-        weight_grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
-        o0 += 3 * LANES;
+    while o0 + STRIP * LANES <= O {
+        weight_grad_strip::<I, O, STRIP>(x, dy, i0, gw, o0);
+        o0 += STRIP * LANES;
     }
-    if o0 + 2 * LANES <= O {
+    if STRIP > 2 && o0 + 2 * LANES <= O {
         weight_grad_strip::<I, O, 2>(x, dy, i0, gw, o0);
         o0 += 2 * LANES;
     }
-    if o0 + LANES <= O {
+    if STRIP > 1 && o0 + LANES <= O {
         weight_grad_strip::<I, O, 1>(x, dy, i0, gw, o0);
         o0 += LANES;
     }
