@@ -264,9 +264,44 @@ pub mod cortex_m {
         );
     }
 
+    /// A board QEMU models, and the code generation for its CPU.
+    pub struct Board {
+        /// QEMU's machine.
+        pub machine: &'static str,
+        /// Extra compiler flags for its CPU (`MPO_CORTEX_M_RUSTFLAGS` of
+        /// `scripts/cortex-m-cargo`).
+        pub rustflags: &'static str,
+    }
+
+    /// Arm's MPS2 with the AN386 image: a Cortex-M4F (single-precision FPU). The board the
+    /// binaries are built for.
+    pub const MPS2_AN386: Board = Board {
+        machine: "mps2-an386",
+        rustflags: "",
+    };
+
+    /// Arm's MPS2 with the AN500 image: a Cortex-M7 with a double-precision FPU (the same
+    /// memory map and UART as the AN386), with code generated for that CPU (f64 arithmetic in
+    /// hardware).
+    pub const MPS2_AN500: Board = Board {
+        machine: "mps2-an500",
+        rustflags: "-C target-cpu=cortex-m7",
+    };
+
     /// `cargo build --release` of a crate under `freestanding/` for the Cortex-M4F through
     /// `scripts/cortex-m-cargo`, with extra `features` and environment, into `target_dir`.
     pub fn build(krate: &str, features: &str, env: &[(&str, &OsStr)], target_dir: &Path) -> Output {
+        build_for(&MPS2_AN386, krate, features, env, target_dir)
+    }
+
+    /// [`build`] for `board`'s CPU.
+    pub fn build_for(
+        board: &Board,
+        krate: &str,
+        features: &str,
+        env: &[(&str, &OsStr)],
+        target_dir: &Path,
+    ) -> Output {
         require();
         let manifest = root().join("freestanding").join(krate).join("Cargo.toml");
         let mut cmd = Command::new(root().join("scripts/cortex-m-cargo"));
@@ -277,6 +312,7 @@ pub mod cortex_m {
         if !features.is_empty() {
             cmd.args(["--features", features]);
         }
+        cmd.env("MPO_CORTEX_M_RUSTFLAGS", board.rustflags);
         for (k, v) in env {
             cmd.env(k, v);
         }
@@ -310,13 +346,14 @@ pub mod cortex_m {
     /// counter is loaded with the addresses of the binary's marks and writes into that file.
     /// No argument contains a space (`mpo train --device` splits at whitespace).
     pub fn command(elf: &Path, count_into: Option<&Path>) -> Vec<String> {
-        command_with(elf, count_into, false, None)
+        command_with(&MPS2_AN386, elf, count_into, false, None)
     }
 
-    /// [`command`], with the counter's per-instruction histogram (`histogram`) and a QMP
-    /// control socket at `qmp` (for [`Qmp`]: the benchmarks read the stack's paint and stop
-    /// QEMU cleanly, so the counter writes its histogram).
+    /// [`command`] on `board`, with the counter's per-instruction histogram (`histogram`) and
+    /// a QMP control socket at `qmp` (for [`Qmp`]: the benchmarks read the stack's paint and
+    /// stop QEMU cleanly, so the counter writes its histogram).
     pub fn command_with(
+        board: &Board,
         elf: &Path,
         count_into: Option<&Path>,
         histogram: bool,
@@ -325,7 +362,7 @@ pub mod cortex_m {
         let mut c: Vec<String> = [
             qemu().display().to_string().as_str(),
             "-M",
-            "mps2-an386",
+            board.machine,
             "-display",
             "none",
             "-monitor",
