@@ -21,6 +21,16 @@
 //! `TRI = ACT (ACT + 1) / 2` Cholesky entries, `H1`/`H2` hidden widths.
 #![no_std]
 #![deny(missing_docs)]
+// On a Cortex-M with an FPU, `linear::mul_add` is `core`'s (unstable) fused multiply-add, the
+// `vfma.f32` instruction; that build is made with `-Zbuild-std` (scripts/cortex-m-cargo).
+#![cfg_attr(
+    all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    ),
+    feature(core_float_math)
+)]
 // The exceptions: `linear::mul_add`, which calls the FMA instruction when the build enables it
 // (a register-only intrinsic), and `linear::wide`, the 512-bit kernels chosen at run time.
 #![deny(unsafe_code)]

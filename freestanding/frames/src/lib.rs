@@ -232,10 +232,27 @@ pub fn f32_at(b: &[u8], at: usize) -> f32 {
     f32::from_bits(u32_at(b, at))
 }
 
-/// Writes `values` as little-endian f32 into `out` (4 bytes each).
+/// The one NaN a frame carries: quiet, sign clear, no payload (`0x7fc0_0000`).
+pub const CANONICAL_NAN: u32 = 0x7fc0_0000;
+
+/// `x` as the 4 little-endian bytes a frame carries, every NaN as [`CANONICAL_NAN`]. The NaN an
+/// invalid operation makes differs between instruction sets (x86's has its sign bit set, Arm's
+/// does not; propagated NaNs keep payloads that depend on operand order), so without this a
+/// device on another CPU would send other bytes for the same computation. Every float either
+/// side sends goes through here.
+pub fn f32_bytes(x: f32) -> [u8; 4] {
+    if x.is_nan() {
+        CANONICAL_NAN.to_le_bytes()
+    } else {
+        x.to_le_bytes()
+    }
+}
+
+/// Writes `values` as little-endian f32 into `out` (4 bytes each; NaNs canonical:
+/// [`f32_bytes`]).
 pub fn put_f32s(values: &[f32], out: &mut [u8]) {
     for (o, v) in out.chunks_exact_mut(4).zip(values) {
-        o.copy_from_slice(&v.to_le_bytes());
+        o.copy_from_slice(&f32_bytes(*v));
     }
 }
 
@@ -467,6 +484,32 @@ mod tests {
     use super::*;
     use std::vec;
     use std::vec::Vec;
+
+    #[test]
+    fn every_nan_is_sent_as_the_canonical_one() {
+        let made = core::hint::black_box(f32::INFINITY) * core::hint::black_box(0.0f32);
+        #[cfg(target_arch = "x86_64")]
+        assert_eq!(
+            made.to_bits(),
+            0xffc0_0000,
+            "x86's invalid-operation NaN is negative"
+        );
+        for x in [
+            made,
+            -made,
+            f32::NAN,
+            f32::from_bits(0x7f80_0001),
+            f32::from_bits(0xffff_ffff),
+        ] {
+            assert!(x.is_nan());
+            assert_eq!(f32_bytes(x), CANONICAL_NAN.to_le_bytes());
+        }
+        let mut out = [0u8; 12];
+        put_f32s(&[1.5, made, -0.0], &mut out);
+        assert_eq!(f32_at(&out, 0), 1.5);
+        assert_eq!(u32_at(&out, 4), CANONICAL_NAN);
+        assert_eq!(u32_at(&out, 8), 0x8000_0000, "only NaNs change: -0 stays");
+    }
 
     #[test]
     fn crc_matches_the_standard_check_value() {
