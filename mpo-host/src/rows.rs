@@ -195,18 +195,13 @@ pub fn default_row(task: &TaskDef) -> Row {
     Row {
         task: task.name().into(),
         net: table::DEFAULT_NET.into(),
-        sizes: Sizes {
-            obs: spec.obs_dim,
-            act: spec.act_dim,
-            actor: [256, 256],
-            critic: [256, 256],
-            batch: 256,
-            chunks: 4,
-            seq: 8,
-            m: 20,
-            n: 20,
-            replay_capacity: 1_000_000,
-        },
+        sizes: Sizes::mlp(
+            spec.obs_dim,
+            spec.act_dim,
+            [256, 256],
+            [256, 256],
+            [256, 4, 8, 20, 20, 1_000_000],
+        ),
         steps: whole(1_000_000),
         schedule: Schedule {
             eval_interval: whole(SUITE_SCHEDULE.eval_interval),
