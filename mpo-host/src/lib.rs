@@ -43,5 +43,7 @@ pub use app::main_with;
 #[doc(hidden)]
 pub mod reexport {
     pub use mpo_core::actor::Actor;
-    pub use mpo_core::agent::Agent;
+    pub use mpo_core::agent::{Agent, AgentOf};
+    pub use mpo_core::critic::Critic;
+    pub use mpo_core::residual::{ResidualActor, ResidualCritic};
 }

@@ -18,7 +18,7 @@ use mpo_core::rng::Rng;
 use mpo_fuzz::{actions_csv, checkpoint as ck, config, frames, link, task_file};
 use mpo_host::checkpoint;
 use mpo_host::commands;
-use mpo_host::trainer::Trainer;
+use mpo_host::trainer::MlpTrainer as Trainer;
 use mpo_link::controller::{ControllerStats, respond};
 use mpo_link::messages::{ActMsg, CHECKSUM_SEED, ObsMsg, ParamChunk, checksum};
 
