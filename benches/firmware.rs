@@ -222,7 +222,9 @@ fn trainer_report() {
         let stack = peak_stack(&bin, &busy);
         let flash = get(".text") + get(".rodata");
         let ram = get(".data") + get(".bss") + stack;
-        let z = mpo_host::table::row("cartpole-balance", "mcu").unwrap().sizes;
+        let z = mpo_host::table::row("cartpole-balance", "mcu")
+            .unwrap()
+            .sizes;
         println!(
             "| cartpole-balance, actor {}-{}, critic {}-{}, batch {}, M = {}, N = {}, replay {}; {cpu} | {} | {} | {:.1} | {} | {} | {stack} | {:.1} | {per_step} | {per_update} |",
             z.actor[0],

@@ -9,7 +9,10 @@ use mpo_core::value_head::{Support, loss, project, softmax, values};
 fn close(a: &[f32], b: &[f64], tol: f64) {
     assert_eq!(a.len(), b.len());
     for (k, (x, y)) in a.iter().zip(b).enumerate() {
-        assert!((*x as f64 - y).abs() <= tol, "atom {k}: {x} vs {y} ({a:?} vs {b:?})");
+        assert!(
+            (*x as f64 - y).abs() <= tol,
+            "atom {k}: {x} vs {y} ({a:?} vs {b:?})"
+        );
     }
 }
 
@@ -86,7 +89,11 @@ fn the_value_is_the_expectation_and_the_gradient_is_p_minus_t() {
     let mut q = [0f32];
     values(&s, &out, &mut probs, &mut q);
     close(&probs[0], &p, 1e-6);
-    let want: f64 = p.iter().zip([-1.0, -0.5, 0.0, 0.5, 1.0]).map(|(p, z)| p * z).sum();
+    let want: f64 = p
+        .iter()
+        .zip([-1.0, -0.5, 0.0, 0.5, 1.0])
+        .map(|(p, z)| p * z)
+        .sum();
     assert!((q[0] as f64 - want).abs() < 1e-6, "{} vs {want}", q[0]);
     let mut scratch = [0f32; 5];
     let lse = softmax(&out[0], &mut scratch);

@@ -225,7 +225,14 @@ fn a_reset_draws_the_networks_of_a_fresh_start_from_the_learners_stream() {
     fill_bandit(&mut l, &mut rng);
     l.update().unwrap();
     assert!(!l.live.actor.bits_eq(&a));
-    let (plain, _) = chunked_run::<16, 4, _>(MpoConfig { reset_interval: 0, ..cfg }, &Serial, 3);
+    let (plain, _) = chunked_run::<16, 4, _>(
+        MpoConfig {
+            reset_interval: 0,
+            ..cfg
+        },
+        &Serial,
+        3,
+    );
     let (reset, _) = chunked_run::<16, 4, _>(cfg, &Serial, 3);
     assert!(!plain.live.critic.bits_eq(&reset.live.critic));
     assert!(reset.live.critic.bits_eq(&reset.target_critic));
