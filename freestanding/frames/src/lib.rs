@@ -103,44 +103,26 @@ impl Fault {
     }
 }
 
-/// CRC-32 (IEEE 802.3, reflected, as zlib's `crc32`): a running value.
-#[derive(Clone, Copy, Debug)]
-pub struct Crc(u32);
+/// The frames' CRC-32: IEEE 802.3, reflected, as zlib's `crc32` (`CRC_32_ISO_HDLC` of the
+/// `crc` crate, whose table is built at compile time: no_std, no allocation).
+static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
-const CRC_TABLE: [u32; 256] = {
-    let mut t = [0u32; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut c = i as u32;
-        let mut k = 0;
-        while k < 8 {
-            c = if c & 1 != 0 {
-                0xEDB8_8320 ^ (c >> 1)
-            } else {
-                c >> 1
-            };
-            k += 1;
-        }
-        t[i] = c;
-        i += 1;
-    }
-    t
-};
+/// CRC-32 of the frames: a running value.
+#[derive(Clone)]
+pub struct Crc(crc::Digest<'static, u32>);
 
 impl Crc {
     /// A fresh checksum.
     pub const fn new() -> Self {
-        Self(0xFFFF_FFFF)
+        Self(CRC32.digest())
     }
     /// Adds bytes.
     pub fn update(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = CRC_TABLE[((self.0 ^ b as u32) & 0xFF) as usize] ^ (self.0 >> 8);
-        }
+        self.0.update(bytes);
     }
     /// The checksum of what was added.
     pub fn finish(&self) -> u32 {
-        !self.0
+        self.0.clone().finalize()
     }
 }
 
@@ -264,6 +246,12 @@ pub fn get_f32s(b: &[u8], values: &mut [f32]) {
 }
 
 /// COBS-encodes bytes into `write` in blocks of at most 254 (the only buffering it needs).
+///
+/// Hand-written rather than a crate's (`cobs`, `corncobs`), on purpose: those encode a whole
+/// input slice into an output buffer, and the device trainer's parameter reply (tens of KB)
+/// would then need a second, encoded copy in a RAM budget of 256 KiB; this encoder streams the
+/// frame to the UART through one 254-byte block. The decoder below works in place for the same
+/// reason. Both are tested against the format's rules here and fuzzed (fuzz/, `frames`).
 struct Cobs<'a, E> {
     block: [u8; 254],
     n: usize,
