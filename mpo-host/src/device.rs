@@ -267,6 +267,8 @@ impl Device {
 
     /// Sends a request until a verified reply of kind `want` with its sequence number comes
     /// back; returns the reply's payload.
+    // One retry loop: send, wait, verify, resend on a timeout or a damaged reply, give up
+    // after the limit; its states share the counters of the report, so it stays in one piece.
     fn request(
         &mut self,
         what: &'static str,

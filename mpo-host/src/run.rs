@@ -483,6 +483,8 @@ fn show(
 
 /// The human-readable table of a run (printed on stderr). One `push_str` per line of the
 /// table, in the order printed: longer than a screen, but read top to bottom like its output.
+// One `push_str` per line of the printed table, in the order printed: long, but read top to
+// bottom as the output it makes (splitting it would scatter the layout).
 pub fn table(s: &RunSummary) -> String {
     let mut t = String::new();
     let mode = match s.rate_hz {

@@ -147,6 +147,8 @@ impl<
     }
 
     /// [`Trainer::new`] for a task already loaded.
+    // Long for its list of parts (environments, agent, random streams, buffers, resume),
+    // each built once in the order the checkpoint restores them.
     pub fn with_task(init: TrainingInit<'_>) -> Result<Self, TrainError> {
         let TrainingInit {
             settings,

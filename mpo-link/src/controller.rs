@@ -206,6 +206,8 @@ pub fn serve<
 
 /// [`serve`] with a policy network of any form (`mpo_core::network::PolicyNet`: the two-layer
 /// actor or the residual one).
+// The controller's whole loop (wait, read, act, reply, take new parameters) in one place, so
+// that the hot path between two requests can be read at once and checked for allocations.
 pub fn serve_policy<const OBS: usize, const ACT: usize, const TRI: usize, P>(
     opts: &ControllerOptions,
     ready: impl FnOnce(),
