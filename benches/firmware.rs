@@ -222,8 +222,19 @@ fn trainer_report() {
         let stack = peak_stack(&bin, &busy);
         let flash = get(".text") + get(".rodata");
         let ram = get(".data") + get(".bss") + stack;
+        let z = mpo_host::table::row("cartpole-balance", "mcu")
+            .unwrap()
+            .sizes;
         println!(
-            "| cartpole-balance, actor and critic 32-32, batch 32, M = N = 8, replay 1000; {cpu} | {} | {} | {:.1} | {} | {} | {stack} | {:.1} | {per_step} | {per_update} |",
+            "| cartpole-balance, actor {}-{}, critic {}-{}, batch {}, M = {}, N = {}, replay {}; {cpu} | {} | {} | {:.1} | {} | {} | {stack} | {:.1} | {per_step} | {per_update} |",
+            z.actor[0],
+            z.actor[1],
+            z.critic[0],
+            z.critic[1],
+            z.batch,
+            z.m,
+            z.n,
+            z.replay_capacity,
             get(".text"),
             get(".rodata"),
             flash as f64 / 1024.0,
@@ -239,21 +250,9 @@ fn trainer_report() {
          build (8-wide where the kernels vectorise)",
         per_update_v3 as f64 / macs as f64
     );
-    // An estimate, not a measurement: a Cortex-M4F has a single-precision FPU with no SIMD; a
-    // fused multiply-add with its operand loads costs about 3 cycles in a well-scheduled loop
-    // (VFMA.F32 1 cycle issue, VLDR 2) and about 5 in a plain one. The rest of the update
-    // (E-step exponentials, Adam, bookkeeping) is at most the whole x86-64-v3 update's
-    // instruction count, at about one cycle each: left out of the low end, added to the high.
-    let hz = 168e6;
-    let fast = macs as f64 * 3.0 / hz;
-    let slow = (macs as f64 * 5.0 + per_update_v3 as f64) / hz;
     println!(
-        "estimate for a 168 MHz Cortex-M4F (3-5 cycles per multiply-add, plus up to one cycle \
-         per x86-64-v3 instruction for the rest): {:.0}-{:.0} ms per update, {:.1}-{:.1} updates/s",
-        fast * 1e3,
-        slow * 1e3,
-        1.0 / slow,
-        1.0 / fast
+        "for a Cortex-M4F, measured (instructions under QEMU, cycles from their mix): \
+         cargo bench --bench cortex_m"
     );
 }
 

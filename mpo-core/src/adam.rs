@@ -172,7 +172,7 @@ impl AdamState {
             v[i] = flush_subnormal(cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (gi * gi));
             let m_hat = m[i] * c1;
             let v_hat = v[i] * c2;
-            p[i] -= cfg.lr * m_hat / (libm::sqrtf(v_hat) + cfg.eps);
+            p[i] -= cfg.lr * m_hat / (crate::linear::sqrt(v_hat) + cfg.eps);
         }
     }
 }
@@ -244,7 +244,7 @@ mod tests {
             for i in 0..2 {
                 rm[i] = cfg.beta1 * rm[i] + (1.0 - cfg.beta1) * g[i];
                 rv[i] = cfg.beta2 * rv[i] + (1.0 - cfg.beta2) * (g[i] * g[i]);
-                rp[i] -= cfg.lr * (rm[i] * c1) / (libm::sqrtf(rv[i] * c2) + cfg.eps);
+                rp[i] -= cfg.lr * (rm[i] * c1) / (crate::linear::sqrt(rv[i] * c2) + cfg.eps);
                 subnormal_unflushed +=
                     rm[i].is_subnormal() as usize + rv[i].is_subnormal() as usize;
                 assert!(

@@ -104,6 +104,9 @@ pub struct RunArgs {
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// An external plant's program.
+    #[command(flatten)]
+    pub plant: crate::plant::PlantArgs,
 }
 
 /// `mpo controller`.
@@ -251,6 +254,9 @@ pub struct TrainArgs {
     /// offscreen rendering, see `mpo render --help`). Off by default.
     #[arg(long, value_name = "N")]
     pub render_every: Option<u32>,
+    /// An external plant's program.
+    #[command(flatten)]
+    pub plant: crate::plant::PlantArgs,
 }
 
 /// `mpo render`.
@@ -311,4 +317,7 @@ pub struct EvalArgs {
     /// [default: the run's seed, which repeats the run's own evaluations].
     #[arg(long, value_name = "S")]
     pub seed: Option<u32>,
+    /// An external plant's program.
+    #[command(flatten)]
+    pub plant: crate::plant::PlantArgs,
 }

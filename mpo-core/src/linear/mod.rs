@@ -26,7 +26,7 @@ mod tiles;
 #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
 pub mod wide;
 
-pub use order::{Start, mul_add, relu_one};
+pub use order::{Start, mul_add, relu_one, sqrt};
 
 use bytemuck::Zeroable;
 

@@ -11,15 +11,35 @@ const LANES: usize = 8;
 /// Samples per tile of the batch forward kernel: 4 x 3 accumulators, 3 weight registers and
 /// one broadcast fill the 16 AVX2 registers (the other shapes tried were slower:
 /// docs/core.md, "Kernels").
+#[cfg(not(target_arch = "arm"))]
 const TILE_N: usize = 4;
+/// Output vectors (of [`LANES`]) per strip of the batch kernels: 3 (twelve AVX2 accumulators).
+#[cfg(not(target_arch = "arm"))]
+const STRIP: usize = 3;
 /// Samples per tile of the narrow-output kernel.
 const TILE_N_NARROW: usize = 8;
 /// Input rows per tile of the weight-gradient kernel (same register budget).
-#[cfg(feature = "train")]
+#[cfg(all(feature = "train", not(target_arch = "arm")))]
 const TILE_I: usize = 4;
 /// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
 /// enough to hide the FMA latency.
+#[cfg(not(target_arch = "arm"))]
 const CHUNK_1: usize = 64;
+
+// A Cortex-M4F has 32 single-precision registers and no SIMD: tiles of 2 samples (input rows)
+// by 8 outputs keep 16 accumulators, 8 weights and the inputs in registers (the x86 tiles, 96
+// accumulators, spill every one of them to the stack), and the single-sample kernel keeps 16
+// accumulators. Every output is still summed in the same order, so the bits are the same
+// (tests/cortex_m.rs, mpo-host/tests/device.rs); only the instruction count changes
+// (benches/cortex_m.rs).
+#[cfg(target_arch = "arm")]
+const TILE_N: usize = 2;
+#[cfg(target_arch = "arm")]
+const STRIP: usize = 1;
+#[cfg(all(feature = "train", target_arch = "arm"))]
+const TILE_I: usize = 2;
+#[cfg(target_arch = "arm")]
+const CHUNK_1: usize = 16;
 
 /// The 8-wide batch kernel for outputs `o0..O` (all of [`kernel`] but its dispatch).
 pub(super) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
@@ -29,15 +49,15 @@ pub(super) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
     y: &mut [[f32; O]],
     mut o0: usize,
 ) {
-    while o0 + 3 * LANES <= O {
-        accumulate_strip::<I, O, 3, RELU>(x, w, start, y, o0);
-        o0 += 3 * LANES;
+    while o0 + STRIP * LANES <= O {
+        accumulate_strip::<I, O, STRIP, RELU>(x, w, start, y, o0);
+        o0 += STRIP * LANES;
     }
-    if o0 + 2 * LANES <= O {
+    if STRIP > 2 && o0 + 2 * LANES <= O {
         accumulate_strip::<I, O, 2, RELU>(x, w, start, y, o0);
         o0 += 2 * LANES;
     }
-    if o0 + LANES <= O {
+    if STRIP > 1 && o0 + LANES <= O {
         accumulate_strip::<I, O, 1, RELU>(x, w, start, y, o0);
         o0 += LANES;
     }
@@ -292,15 +312,15 @@ pub(super) fn weight_grad_from<const I: usize, const O: usize>(
     gw: &mut [[f32; O]],
     mut o0: usize,
 ) {
-    while o0 + 3 * LANES <= O {
-        weight_grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
-        o0 += 3 * LANES;
+    while o0 + STRIP * LANES <= O {
+        weight_grad_strip::<I, O, STRIP>(x, dy, i0, gw, o0);
+        o0 += STRIP * LANES;
     }
-    if o0 + 2 * LANES <= O {
+    if STRIP > 2 && o0 + 2 * LANES <= O {
         weight_grad_strip::<I, O, 2>(x, dy, i0, gw, o0);
         o0 += 2 * LANES;
     }
-    if o0 + LANES <= O {
+    if STRIP > 1 && o0 + LANES <= O {
         weight_grad_strip::<I, O, 1>(x, dy, i0, gw, o0);
         o0 += LANES;
     }
