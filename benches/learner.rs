@@ -139,8 +139,14 @@ fn bench_row<const OBS: usize, const ACT: usize, const TRI: usize>(
         m: 20,
         n: 20,
         replay_capacity: row.sizes.replay_capacity,
+        actor_blocks: 0,
+        critic_blocks: 0,
+        bins: 1,
     };
-    assert_eq!(row.sizes, want, "{task}: the bench's types are not the row's sizes");
+    assert_eq!(
+        row.sizes, want,
+        "{task}: the bench's types are not the row's sizes"
+    );
     let cfg = row.mpo.to_config();
     let label = format!("{task} row (as trained)");
     bench_seq::<OBS, ACT, TRI, ROW_SEQ, 20, 20>(&label, cfg, one, two);
@@ -273,7 +279,10 @@ fn main() {
         .unwrap_or(1);
     if let Some(i) = args.iter().position(|a| a == "profile") {
         let n = args.get(i + 1).and_then(|v| v.parse().ok()).unwrap_or(3);
-        let end = args.iter().position(|a| a == "threads").unwrap_or(args.len());
+        let end = args
+            .iter()
+            .position(|a| a == "threads")
+            .unwrap_or(args.len());
         return profile(n, &args[(i + 2).min(end)..end], threads);
     }
     let only_row = args

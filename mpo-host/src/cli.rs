@@ -66,6 +66,18 @@ pub enum Command {
     Controller(ControllerArgs),
 }
 
+impl Command {
+    /// The plant flags of the commands that step an environment (`train`, `eval`, `run`).
+    pub fn plant_args(&self) -> Option<&crate::plant::PlantArgs> {
+        match self {
+            Self::Train(a) => Some(&a.plant),
+            Self::Eval(a) => Some(&a.plant),
+            Self::Run(a) => Some(&a.plant),
+            _ => None,
+        }
+    }
+}
+
 /// `mpo run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {

@@ -21,8 +21,6 @@ use mpo_link::RunId;
 use mpo_link::external::{Expected, ExternalOptions, ExternalPlant, PlantCommand};
 use sim_bridge::{Environment, SimError, Step, TaskDef, TaskSpec};
 
-use crate::cli::Command;
-
 /// `--attach-plant`, for the commands that step a plant.
 #[derive(Debug, Clone, Default, Args)]
 pub struct PlantArgs {
@@ -55,14 +53,9 @@ fn registry() -> MutexGuard<'static, Registry> {
 pub struct Session(());
 
 impl Session {
-    /// Starts the session of `command` (its `--attach-plant`, if any).
-    pub fn begin(command: &Command) -> Self {
-        let args = match command {
-            Command::Train(a) => Some(&a.plant),
-            Command::Eval(a) => Some(&a.plant),
-            Command::Run(a) => Some(&a.plant),
-            _ => None,
-        };
+    /// Starts the session of a command with these plant flags (its `--attach-plant`, if
+    /// any; `None` for a command that has none).
+    pub fn begin(args: Option<&PlantArgs>) -> Self {
         registry().attach = args.and_then(|a| a.attach_plant.clone());
         Self(())
     }

@@ -159,7 +159,11 @@ fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
 ) {
     // A compile-time constant in every instance (the strips end at the last multiple of 8).
     let width = O % LANES;
-    assert_eq!(o0 + width, O, "narrow outputs start at the last multiple of 8");
+    assert_eq!(
+        o0 + width,
+        O,
+        "narrow outputs start at the last multiple of 8"
+    );
     let o0 = O - width;
     let padded = HW_FMA && width >= 2;
     let mut n0 = 0;
@@ -405,7 +409,11 @@ fn weight_grad_narrow<const I: usize, const O: usize>(
     o0: usize,
 ) {
     let width = O % LANES;
-    assert_eq!(o0 + width, O, "narrow columns start at the last multiple of 8");
+    assert_eq!(
+        o0 + width,
+        O,
+        "narrow columns start at the last multiple of 8"
+    );
     let o0 = O - width;
     let rows = gw.len();
     let mut r = 0;

@@ -3,9 +3,9 @@
 
 use bytemuck::Zeroable;
 
-use super::Trunk;
+use super::trunk::Trunk;
 #[cfg(feature = "train")]
-use super::TrunkTape;
+use super::trunk::TrunkTape;
 use crate::gaussian::{softplus_inverse, tri_index};
 use crate::linear::Linear;
 use crate::network::PolicyNet;
@@ -15,7 +15,7 @@ use crate::rng::Rng;
 use crate::squash::MeanSquash;
 
 #[cfg(feature = "train")]
-use super::{MAX_PARTS, TrunkPart, TrunkTransposed};
+use super::trunk::{MAX_PARTS, TrunkPart, TrunkTransposed};
 #[cfg(feature = "train")]
 use crate::actor::sum_squares;
 #[cfg(feature = "train")]

@@ -5,7 +5,7 @@
 
 use bytemuck::Zeroable;
 
-use super::{MAX_PARTS, Trunk, TrunkPart, TrunkTape, TrunkTransposed};
+use super::trunk::{MAX_PARTS, Trunk, TrunkPart, TrunkTape, TrunkTransposed};
 use crate::actor::sum_squares;
 use crate::config::MpoConfig;
 use crate::critic::Weights;
