@@ -149,6 +149,29 @@ pub mod firmware {
         )
     }
 
+    /// Runs the x86_64 firmware `bin` on `obs` (records of little-endian f32s on its stdin)
+    /// and returns what it wrote to stdout; panics if it does not exit successfully.
+    pub fn run<const OBS: usize>(bin: &Path, obs: &[[f32; OBS]]) -> Vec<u8> {
+        use std::io::Write;
+        use std::process::{Command, Stdio};
+        let input: Vec<u8> = obs.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        let mut child = Command::new(bin)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("failed to run the firmware");
+        let mut stdin = child.stdin.take().unwrap();
+        let writer = std::thread::spawn(move || stdin.write_all(&input));
+        let result = child.wait_with_output().unwrap();
+        writer.join().unwrap().unwrap();
+        assert!(
+            result.status.success(),
+            "firmware exited with {:?}",
+            result.status
+        );
+        result.stdout
+    }
+
     /// Exports `actor` and builds the firmware under `target/firmware/NAME/`; returns the
     /// binary's path (panics with cargo's output if the build fails).
     pub fn export_and_build<
