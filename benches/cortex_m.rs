@@ -24,9 +24,13 @@ use std::time::Duration;
 
 use mpo_core::actor::Actor;
 use mpo_core::rng::Rng;
-use mpo_frames::{DELIMITER, START_LEN, encode, kind};
+use mpo_frames::DELIMITER;
 use mpo_integration::cortex_m::{self, Board, MPS2_AN386, MPS2_AN500, Qmp};
 use mpo_integration::firmware::export_and_build_cortex_m;
+
+#[path = "common/trainer_frames.rs"]
+mod trainer_frames;
+use trainer_frames::trainer_input;
 
 const HZ: f64 = 168e6;
 /// The targets (issue 34).
@@ -298,50 +302,6 @@ fn print_classes(mx: &Mix) {
     println!("- instruction mix: {}", parts.join(", "));
 }
 
-/// Frames for the device trainer: `HELLO`, `START` (the `mcu` row's configuration, warm-up
-/// `warmup`, an update after every step), `BEGIN`, then `steps` `STEP`s of random
-/// observations, reward 1, in one episode.
-fn trainer_input(warmup: u64, steps: u64) -> Vec<u8> {
-    let row = mpo_host::table::row("cartpole-balance", "mcu").unwrap();
-    let settings = mpo_host::commands::defaults(row);
-    let mut schedule = mpo_host::trainer::agent_schedule(&settings);
-    schedule.warmup_steps = warmup;
-    schedule.update_interval = 1;
-    let mut out = Vec::new();
-    let mut seq = 0u8;
-    let mut frame = |k: u8, p: &[u8]| {
-        seq = seq.wrapping_add(1);
-        let mut b = vec![0u8; p.len() + 64];
-        let n = encode(k, seq, p, &mut b);
-        out.extend_from_slice(&b[..n]);
-    };
-    let mut start = vec![0u8; START_LEN];
-    start[0..8].copy_from_slice(&schedule.warmup_steps.to_le_bytes());
-    start[8..16].copy_from_slice(&schedule.update_interval.to_le_bytes());
-    start[16..24].copy_from_slice(&schedule.updates_per_interval.to_le_bytes());
-    start[24..28].copy_from_slice(&schedule.n_step.to_le_bytes());
-    for (i, w) in settings.mpo.to_config().to_words().iter().enumerate() {
-        start[32 + 4 * i..36 + 4 * i].copy_from_slice(&w.to_le_bytes());
-    }
-    frame(kind::HELLO, &[]);
-    frame(kind::START, &start);
-    let mut rng = Rng::seed_from_u64(3);
-    let mut obs = [0f32; 5];
-    rng.fill_normal(&mut obs);
-    let mut b = [0u8; 20];
-    mpo_frames::put_f32s(&obs, &mut b);
-    frame(kind::BEGIN, &b);
-    for _ in 0..steps {
-        rng.fill_normal(&mut obs);
-        let mut s = [0u8; 29];
-        s[0..4].copy_from_slice(&1f32.to_le_bytes());
-        s[4..8].copy_from_slice(&1f32.to_le_bytes());
-        mpo_frames::put_f32s(&obs, &mut s[9..]);
-        frame(kind::STEP, &s);
-    }
-    out
-}
-
 /// The device trainer on `board` (built into `target/DIR`): `WARMUP` steps without updates,
 /// then `UPDATES` steps with one update each. Returns the median instructions per update and
 /// the RAM.
@@ -361,7 +321,7 @@ fn trainer(board: &Board, dir: &str, title: &str, cycle_model: bool) -> (u64, u6
         board,
         &elf,
         &format!("trainer-{}", board.machine),
-        trainer_input(WARMUP, WARMUP + UPDATES),
+        trainer_input(WARMUP, 1, WARMUP + UPDATES, false),
         move |got| got.iter().filter(|&&b| b == DELIMITER).count() as u64 >= replies,
     );
     // Spans alternate: act (BEGIN and every STEP), observe (every STEP).
