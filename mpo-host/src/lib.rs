@@ -32,6 +32,7 @@ pub mod settings;
 pub mod sizes;
 pub mod spec;
 pub mod table;
+pub mod time_split;
 pub mod train;
 pub mod trainer;
 pub mod training;

@@ -24,6 +24,7 @@ use crate::outputs::Outputs;
 use crate::progress::Progress;
 use crate::settings::Settings;
 use crate::spec::Instance;
+use crate::time_split::{Laps, TimeSplit};
 pub use crate::training::{StepError, TrainError};
 use crate::training::{Training, TrainingInit};
 
@@ -57,6 +58,10 @@ pub struct Summary {
     /// The device link's counters with `--device` (absent otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub device: Option<crate::device::DeviceReport>,
+    /// Where this process's wall clock went (learning, environment, acting, evaluation,
+    /// checkpoints): the learning part's updates/s is the figure the learner bench measures.
+    #[serde(default)]
+    pub time: TimeSplit,
 }
 
 /// What `mpo train` was asked to do.
@@ -111,7 +116,7 @@ pub fn run(req: TrainRequest<'_>) -> Result<Summary, TrainError> {
     if s.rows.is_empty() {
         // The untrained policy: the curve's first point and the baseline of every later one.
         s.evaluate(t.as_mut())?;
-        s.outputs.metrics(&s.rows, &s.progress)?;
+        s.write_metrics()?;
         let (m, sd) = s.last_eval;
         s.progress.log(&format!(
             "step {:>8}  eval {m:7.1} +- {sd:5.1}  (untrained)",
@@ -162,6 +167,9 @@ struct Session<'r> {
     /// The last evaluation's mean and standard deviation.
     last_eval: (f64, f64),
     last_checkpoint: Option<u64>,
+    /// Updates at the start of this segment, and the loop's own parts of the time split.
+    updates0: u64,
+    times: TimeSplit,
 }
 
 impl<'r> Session<'r> {
@@ -195,6 +203,8 @@ impl<'r> Session<'r> {
             mark: (wall0, t.env_steps(), t.updates()),
             last_eval,
             last_checkpoint,
+            updates0: t.updates(),
+            times: TimeSplit::default(),
         })
     }
 
@@ -206,6 +216,13 @@ impl<'r> Session<'r> {
     /// Evaluates the current policy and appends the metrics row (and, with
     /// `--render-every`, a contact sheet: it only reads the policy, a failure is a warning).
     fn evaluate(&mut self, t: &mut dyn Training) -> Result<(), TrainError> {
+        let mut laps = Laps::start();
+        let r = self.evaluate_untimed(t);
+        laps.lap(&mut self.times.evaluate_s);
+        r
+    }
+
+    fn evaluate_untimed(&mut self, t: &mut dyn Training) -> Result<(), TrainError> {
         let s = &self.req.settings;
         let returns = t.evaluate(&self.req.task, s.seed, s.schedule.eval_episodes)?;
         let (mean, std) = mean_std(&returns);
@@ -244,8 +261,18 @@ impl<'r> Session<'r> {
 
     /// Writes the checkpoint of the trainer's present state.
     fn save(&mut self, t: &dyn Training) -> Result<(), TrainError> {
+        let mut laps = Laps::start();
         self.outputs.checkpoint(t, &self.rows, self.wall())?;
+        laps.lap(&mut self.times.checkpoint_s);
         self.last_checkpoint = Some(t.env_steps());
+        Ok(())
+    }
+
+    /// Writes the metrics files (charged to checkpoints and metrics).
+    fn write_metrics(&mut self) -> Result<(), TrainError> {
+        let mut laps = Laps::start();
+        self.outputs.metrics(&self.rows, &self.progress)?;
+        laps.lap(&mut self.times.checkpoint_s);
         Ok(())
     }
 
@@ -275,7 +302,7 @@ impl<'r> Session<'r> {
                 self.evaluate(t)?;
                 self.report_evaluation();
                 self.mark = (self.wall(), t.env_steps(), t.updates());
-                self.outputs.metrics(&self.rows, &self.progress)?;
+                self.write_metrics()?;
                 self.save(t)?;
                 next_eval = (t.env_steps() / interval + 1) * interval;
             }
@@ -372,6 +399,16 @@ impl<'r> Session<'r> {
                 c.misses, c.requests
             ));
         }
+        let inner = t.time_split();
+        let time = TimeSplit {
+            learn_s: inner.learn_s,
+            env_s: inner.env_s,
+            act_s: inner.act_s,
+            total_s: self.started.elapsed().as_secs_f64(),
+            updates: t.updates() - self.updates0,
+            ..self.times
+        };
+        self.progress.log(&time.line());
         Summary {
             task: self.req.settings.task.clone(),
             seed: self.req.settings.seed,
@@ -385,6 +422,7 @@ impl<'r> Session<'r> {
             interrupted,
             controller,
             device: t.device_report(),
+            time,
         }
     }
 }

@@ -28,6 +28,7 @@ use crate::policy::Policy;
 use crate::pool::PoolParallel;
 use crate::settings::Settings;
 use crate::sizes::Sizes;
+use crate::time_split::{Laps, TimeSplit};
 use crate::training::{StepError, TrainError};
 use crate::training::{Training, TrainingInit};
 
@@ -104,6 +105,8 @@ pub struct Trainer<
     pub device: Option<Device>,
     /// With a device: the action it chose for the current state, and its log-density.
     device_action: [f32; ACT],
+    /// Seconds spent learning, stepping the environment and acting in this process.
+    pub times: TimeSplit,
 }
 
 impl<
@@ -208,6 +211,7 @@ impl<
             params_dirty: true,
             device: None,
             device_action: [0.0; ACT],
+            times: TimeSplit::default(),
         })
     }
 
@@ -342,12 +346,14 @@ impl<
         }
         let mut obs = [0f32; OBS];
         let mut act = [0f32; ACT];
+        let mut laps = Laps::start();
         for taken in 1..=steps {
             if !self.in_episode {
                 self.env.reset(&mut self.obs64);
                 self.agent.begin_episode();
                 self.in_episode = true;
                 self.episode_step = 0;
+                laps.lap(&mut self.times.env_s);
             }
             for (o, x) in obs.iter_mut().zip(&self.obs64) {
                 *o = *x as f32;
@@ -357,6 +363,7 @@ impl<
             } else {
                 self.agent.act(&obs, &mut act)
             };
+            laps.lap(&mut self.times.act_s);
             // The policy acts in [-1, 1] (the environment maps it onto the actuators'
             // ranges); the replay keeps the sample.
             for (o, a) in self.act64.iter_mut().zip(&act) {
@@ -366,6 +373,7 @@ impl<
                 .env
                 .try_step(&self.act64, &mut self.next64)
                 .map_err(StepError::Sim)?;
+            laps.lap(&mut self.times.env_s);
             let mut excess = 0f32;
             for (a, c) in act.iter().zip(&self.act64) {
                 excess += (a - *c as f32) * (a - *c as f32);
@@ -388,6 +396,7 @@ impl<
                 self.episodes += 1;
             }
             self.observe(&t).map_err(StepError::Update)?;
+            laps.lap(&mut self.times.learn_s);
             if step.last && stop_at_episode_end {
                 return Ok(taken);
             }
@@ -404,15 +413,19 @@ impl<
     ) -> Result<u64, StepError> {
         let mut obs = [0f32; OBS];
         let mut next = [0f32; OBS];
+        // The device acts and learns in one exchange: its time is charged to learning.
+        let mut laps = Laps::start();
         for taken in 1..=steps {
             let dev = self.device.as_mut().expect("checked");
             if !self.in_episode {
                 self.env.reset(&mut self.obs64);
+                laps.lap(&mut self.times.env_s);
                 for (o, x) in obs.iter_mut().zip(&self.obs64) {
                     *o = *x as f32;
                 }
                 dev.begin(&obs, &mut self.device_action)
                     .map_err(StepError::Device)?;
+                laps.lap(&mut self.times.learn_s);
                 self.in_episode = true;
                 self.episode_step = 0;
             }
@@ -424,6 +437,7 @@ impl<
                 .env
                 .try_step(&self.act64, &mut self.next64)
                 .map_err(StepError::Sim)?;
+            laps.lap(&mut self.times.env_s);
             let mut excess = 0f32;
             for (a, c) in act.iter().zip(&self.act64) {
                 excess += (a - *c as f32) * (a - *c as f32);
@@ -440,6 +454,7 @@ impl<
                 &mut self.device_action,
             )
             .map_err(StepError::Device)?;
+            laps.lap(&mut self.times.learn_s);
             core::mem::swap(&mut self.obs64, &mut self.next64);
             self.episode_step += 1;
             self.agent.env_steps += 1;
@@ -655,6 +670,9 @@ impl<
     }
     fn attach_device(&mut self, dev: Device, settings: &Settings) -> Result<(), TrainError> {
         Trainer::attach_device(self, dev, settings)
+    }
+    fn time_split(&self) -> TimeSplit {
+        self.times
     }
     fn device_report(&self) -> Option<DeviceReport> {
         self.device.as_ref().map(|d| d.report.clone())

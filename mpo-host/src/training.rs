@@ -72,6 +72,9 @@ pub trait Training {
     fn attach_device(&mut self, dev: Device, settings: &Settings) -> Result<(), TrainError>;
     /// The device link's counters, when learning on one.
     fn device_report(&self) -> Option<DeviceReport>;
+    /// Seconds this process spent learning, stepping the environment and acting (the other
+    /// parts of [`crate::time_split::TimeSplit`] are the training loop's).
+    fn time_split(&self) -> crate::time_split::TimeSplit;
 }
 
 /// Why training stopped early.

@@ -54,11 +54,35 @@ fn restore_then_save_gives_the_same_bytes() {
     assert_eq!(st.tensor("obs").unwrap().shape(), &[2000, 5]);
 }
 
+/// The summary's time split: every part measured, the segment's updates counted, the parts
+/// within the whole.
+fn assert_time_split_adds_up(summary: &serde_json::Value) {
+    let t = &summary["time"];
+    let part = |k: &str| {
+        t[k].as_f64()
+            .unwrap_or_else(|| panic!("time.{k} missing: {t}"))
+    };
+    assert_eq!(t["updates"], summary["updates"], "a fresh run's updates");
+    for k in ["learn_s", "env_s", "act_s", "evaluate_s", "checkpoint_s"] {
+        assert!(part(k) > 0.0, "time.{k} not measured: {t}");
+    }
+    let parts: f64 = ["learn_s", "env_s", "act_s", "evaluate_s", "checkpoint_s"]
+        .iter()
+        .map(|k| part(k))
+        .sum();
+    assert!(
+        parts <= part("total_s"),
+        "parts {parts} exceed the whole: {t}"
+    );
+    assert!(part("total_s") <= summary["wall_s"].as_f64().unwrap() + 1e-6);
+}
+
 #[test]
 fn eval_repeats_the_runs_last_evaluation() {
     let d = scratch("evalrepeat");
     let run = d.join("run");
     let summary = ok_json(&tiny(&run, 1000, &[]));
+    assert_time_split_adds_up(&summary);
     // The tiny row evaluates 3 episodes; `mpo eval` with the run's seed uses the same ones.
     let e = ok_json(&mpo(&[
         "eval",
