@@ -41,6 +41,7 @@ pub mod critic;
 pub mod estep;
 #[cfg(feature = "train")]
 pub mod evaluation;
+pub mod explore;
 pub mod export;
 pub mod gaussian;
 #[cfg(feature = "train")]

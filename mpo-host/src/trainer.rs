@@ -196,7 +196,7 @@ impl<
             path: v.dir.join("meta.json"),
             message: format!("bad {what}"),
         };
-        agent.collector =
+        agent.explore.collector =
             checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?;
         agent.sampler = checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?;
         agent.env_steps = m.env_steps;
@@ -218,7 +218,7 @@ impl<
             episodes: self.episodes,
             updates: l.updates,
             learner_rng: checkpoint::hex(&l.rng_state),
-            collector_rng: checkpoint::hex(&self.agent.collector),
+            collector_rng: checkpoint::hex(&self.agent.explore.collector),
             sampler_rng: checkpoint::hex(&self.agent.sampler),
             replay: Counters {
                 head: c.head,

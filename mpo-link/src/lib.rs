@@ -12,6 +12,7 @@
 //! send) or by busy-polling ([`service::WaitMode`]).
 
 pub mod controller;
+pub mod fleet;
 pub mod messages;
 pub mod plant;
 pub mod realtime;
