@@ -16,6 +16,10 @@ use mpo_core::actor::Actor;
 use mpo_core::rng::Rng;
 use mpo_integration::firmware::export_and_build;
 
+#[path = "common/trainer_frames.rs"]
+mod trainer_frames;
+use trainer_frames::trainer_input;
+
 /// Section sizes from `size -A`.
 fn sections(bin: &Path) -> std::collections::HashMap<String, u64> {
     let out = Command::new("size")
@@ -140,52 +144,6 @@ fn main() {
     trainer_report();
 }
 
-/// The frames a host sends for a fresh mcu run with the row's configuration, warm-up `warmup`
-/// and then `steps` environment steps (one update every `interval`), in one episode of random
-/// observations, rewards 1 (what the device does with them costs the same whatever they are).
-fn trainer_input(warmup: u64, interval: u64, steps: u64) -> Vec<u8> {
-    use mpo_frames::{START_LEN, encode, kind};
-    let row = mpo_host::table::row("cartpole-balance", "mcu").unwrap();
-    let settings = mpo_host::commands::defaults(row);
-    let mut schedule = mpo_host::trainer::agent_schedule(&settings);
-    schedule.warmup_steps = warmup;
-    schedule.update_interval = interval;
-    let mut out = Vec::new();
-    let mut seq = 0u8;
-    let mut frame = |k: u8, p: &[u8]| {
-        seq = seq.wrapping_add(1);
-        let mut b = vec![0u8; p.len() + 64];
-        let n = encode(k, seq, p, &mut b);
-        out.extend_from_slice(&b[..n]);
-    };
-    let mut start = vec![0u8; START_LEN];
-    start[0..8].copy_from_slice(&schedule.warmup_steps.to_le_bytes());
-    start[8..16].copy_from_slice(&schedule.update_interval.to_le_bytes());
-    start[16..24].copy_from_slice(&schedule.updates_per_interval.to_le_bytes());
-    start[24..28].copy_from_slice(&schedule.n_step.to_le_bytes());
-    for (i, w) in settings.mpo.to_config().to_words().iter().enumerate() {
-        start[32 + 4 * i..36 + 4 * i].copy_from_slice(&w.to_le_bytes());
-    }
-    frame(kind::HELLO, &[]);
-    frame(kind::START, &start);
-    let mut rng = Rng::seed_from_u64(3);
-    let mut obs = [0f32; 5];
-    rng.fill_normal(&mut obs);
-    let mut b = [0u8; 20];
-    mpo_frames::put_f32s(&obs, &mut b);
-    frame(kind::BEGIN, &b);
-    for t in 0..steps {
-        rng.fill_normal(&mut obs);
-        let mut s = [0u8; 29];
-        s[0..4].copy_from_slice(&1f32.to_le_bytes());
-        s[4..8].copy_from_slice(&1f32.to_le_bytes());
-        s[8] = (t + 1 == steps) as u8;
-        mpo_frames::put_f32s(&obs, &mut s[9..]);
-        frame(kind::STEP, &s);
-    }
-    out
-}
-
 /// The device trainer (`freestanding/trainer`, the `mcu` row): flash, RAM, and instructions
 /// per environment step and per update, built twice: for the baseline x86-64 CPU (no FMA
 /// instruction, so every multiply-add is a call to `libm::fmaf`: what the bit-identity tests
@@ -211,9 +169,9 @@ fn trainer_report() {
         let get = |k: &str| s.get(k).copied().unwrap_or(0);
         // 200 steps without updates; then 200 more with an update every step.
         let (steps, updates) = (200u64, 200u64);
-        let quiet = trainer_input(1_000_000, 1, steps);
-        let busy = trainer_input(steps, 1, steps + updates);
-        let base = instructions(&bin, &trainer_input(1_000_000, 1, 1));
+        let quiet = trainer_input(1_000_000, 1, steps, true);
+        let busy = trainer_input(steps, 1, steps + updates, true);
+        let base = instructions(&bin, &trainer_input(1_000_000, 1, 1, true));
         let i_quiet = instructions(&bin, &quiet);
         let i_busy = instructions(&bin, &busy);
         let per_step = (i_quiet - base) / (steps - 1);
@@ -222,8 +180,19 @@ fn trainer_report() {
         let stack = peak_stack(&bin, &busy);
         let flash = get(".text") + get(".rodata");
         let ram = get(".data") + get(".bss") + stack;
+        let z = mpo_host::table::row("cartpole-balance", "mcu")
+            .unwrap()
+            .sizes;
         println!(
-            "| cartpole-balance, actor and critic 32-32, batch 32, M = N = 8, replay 1000; {cpu} | {} | {} | {:.1} | {} | {} | {stack} | {:.1} | {per_step} | {per_update} |",
+            "| cartpole-balance, actor {}-{}, critic {}-{}, batch {}, M = {}, N = {}, replay {}; {cpu} | {} | {} | {:.1} | {} | {} | {stack} | {:.1} | {per_step} | {per_update} |",
+            z.actor[0],
+            z.actor[1],
+            z.critic[0],
+            z.critic[1],
+            z.batch,
+            z.m,
+            z.n,
+            z.replay_capacity,
             get(".text"),
             get(".rodata"),
             flash as f64 / 1024.0,
@@ -239,21 +208,9 @@ fn trainer_report() {
          build (8-wide where the kernels vectorise)",
         per_update_v3 as f64 / macs as f64
     );
-    // An estimate, not a measurement: a Cortex-M4F has a single-precision FPU with no SIMD; a
-    // fused multiply-add with its operand loads costs about 3 cycles in a well-scheduled loop
-    // (VFMA.F32 1 cycle issue, VLDR 2) and about 5 in a plain one. The rest of the update
-    // (E-step exponentials, Adam, bookkeeping) is at most the whole x86-64-v3 update's
-    // instruction count, at about one cycle each: left out of the low end, added to the high.
-    let hz = 168e6;
-    let fast = macs as f64 * 3.0 / hz;
-    let slow = (macs as f64 * 5.0 + per_update_v3 as f64) / hz;
     println!(
-        "estimate for a 168 MHz Cortex-M4F (3-5 cycles per multiply-add, plus up to one cycle \
-         per x86-64-v3 instruction for the rest): {:.0}-{:.0} ms per update, {:.1}-{:.1} updates/s",
-        fast * 1e3,
-        slow * 1e3,
-        1.0 / slow,
-        1.0 / fast
+        "for a Cortex-M4F, measured (instructions under QEMU, cycles from their mix): \
+         cargo bench --bench cortex_m"
     );
 }
 

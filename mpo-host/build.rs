@@ -34,6 +34,24 @@ struct Sizes {
     m: usize,
     n: usize,
     replay_capacity: usize,
+    #[serde(default)]
+    actor_blocks: usize,
+    #[serde(default)]
+    critic_blocks: usize,
+    #[serde(default = "one")]
+    bins: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+/// `[A, B]`, or with blocks `[W, F] x D` (the `spec!` syntax of a residual network).
+fn net(w: [usize; 2], blocks: usize) -> String {
+    match blocks {
+        0 => format!("[{}, {}]", w[0], w[1]),
+        d => format!("[{}, {}] x {d}", w[0], w[1]),
+    }
 }
 
 fn main() {
@@ -58,11 +76,15 @@ fn main() {
     let mut out = String::from("crate::spec! {\n");
     for (i, s) in unique.iter().enumerate() {
         check(s, &path);
+        let bins = match s.bins {
+            1 => String::new(),
+            k => format!(" bins {k},"),
+        };
         writeln!(
             out,
-            "    /// `sizes/local.toml`, entry {i}.\n    pub Local{i} = obs {}, act {}, actor [{}, {}], critic [{}, {}], batch {} / {}, seq {}, samples {} {}, replay {};",
-            s.obs, s.act, s.actor[0], s.actor[1], s.critic[0], s.critic[1], s.batch, s.chunks,
-            s.seq, s.m, s.n, s.replay_capacity
+            "    /// `sizes/local.toml`, entry {i}.\n    pub Local{i} = obs {}, act {}, actor {}, critic {},{bins} batch {} / {}, seq {}, samples {} {}, replay {};",
+            s.obs, s.act, net(s.actor, s.actor_blocks), net(s.critic, s.critic_blocks), s.batch,
+            s.chunks, s.seq, s.m, s.n, s.replay_capacity
         )
         .unwrap();
     }
@@ -95,10 +117,13 @@ fn check(s: &Sizes, path: &Path) {
     .all(|&v| v > 0)
         && s.batch.is_multiple_of(s.chunks)
         && s.act <= 64
-        && s.replay_capacity <= 10_000_000;
+        && s.replay_capacity <= 10_000_000
+        && s.actor_blocks <= 8
+        && s.critic_blocks <= 8
+        && (1..=1024).contains(&s.bins);
     if !ok {
         panic!(
-            "{}: sizes obs {} act {} batch {} / {}: every size at least 1, act at most 64, the batch a multiple of chunks",
+            "{}: sizes obs {} act {} batch {} / {}: every size at least 1, act at most 64, the batch a multiple of chunks, at most 8 blocks, 1 to 1024 bins",
             path.display(),
             s.obs,
             s.act,

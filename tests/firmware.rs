@@ -42,32 +42,14 @@ fn check_profile<const OBS: usize, const ACT: usize, const TRI: usize>(name: &st
     // Finite but huge: the network overflows, so the safe action is expected (found by the
     // fuzz target `firmware_records`).
     obs[1500] = [f32::from_bits(0x7f7f_7f7f); OBS];
-    let input: Vec<u8> = obs.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
-    let mut child = Command::new(&bin)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("failed to run the firmware");
-    let mut stdin = child.stdin.take().unwrap();
-    let writer = std::thread::spawn(move || stdin.write_all(&input));
-    let result = child.wait_with_output().unwrap();
-    writer.join().unwrap().unwrap();
-    assert!(
-        result.status.success(),
-        "firmware exited with {:?}",
-        result.status
-    );
+    let stdout = mpo_integration::firmware::run(&bin, &obs);
     assert_eq!(
-        result.stdout.len(),
+        stdout.len(),
         obs.len() * ACT * 4,
         "one action per observation"
     );
     let mut overflowed = false;
-    for (k, (o, bytes)) in obs
-        .iter()
-        .zip(result.stdout.chunks_exact(ACT * 4))
-        .enumerate()
-    {
+    for (k, (o, bytes)) in obs.iter().zip(stdout.chunks_exact(ACT * 4)).enumerate() {
         let mut want = [0f32; ACT];
         if o.iter().all(|x| x.is_finite()) {
             actor.mean_action(o, &mut want);

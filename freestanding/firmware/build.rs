@@ -1,10 +1,15 @@
-//! Links as a static binary with no C runtime, and copies the exported policy named by
+//! Links as a static binary with no C runtime (x86_64 Linux) or with the board's memory map
+//! (Arm; the linker script comes from mpo-rt), and copies the exported policy named by
 //! `MPO_FIRMWARE_WEIGHTS` into the build so `src/main.rs` can include it.
 use std::path::PathBuf;
 
 fn main() {
-    for arg in ["-nostartfiles", "-nostdlib", "-static", "-Wl,--gc-sections"] {
-        println!("cargo:rustc-link-arg-bins={arg}");
+    if std::env::var("CARGO_CFG_TARGET_ARCH").as_deref() == Ok("arm") {
+        println!("cargo:rustc-link-arg-bins=-Tmps2-an386.ld");
+    } else {
+        for arg in ["-nostartfiles", "-nostdlib", "-static", "-Wl,--gc-sections"] {
+            println!("cargo:rustc-link-arg-bins={arg}");
+        }
     }
     println!("cargo:rerun-if-env-changed=MPO_FIRMWARE_WEIGHTS");
     let Some(src) = std::env::var_os("MPO_FIRMWARE_WEIGHTS") else {

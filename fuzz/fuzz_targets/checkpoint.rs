@@ -11,8 +11,8 @@ use libfuzzer_sys::fuzz_target;
 use mpo_fuzz::checkpoint::{FIX_SUMS, NAMES, decode};
 use mpo_host::checkpoint::{self, Verified};
 use mpo_host::commands::{self, Flags};
-use mpo_host::rows;
 use mpo_host::registry;
+use mpo_host::rows;
 use mpo_host::training::TrainingInit;
 
 fuzz_target!(|data: &[u8]| {

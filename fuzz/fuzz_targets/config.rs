@@ -82,7 +82,7 @@ fuzz_target!(|data: &[u8]| {
             params_sha256: String::new(),
         };
         match commands::resolve_resumed(&meta, Path::new("/fuzz/run/checkpoint"), &layers) {
-            Ok(s) => round_trip(&s),
+            Ok(r) => round_trip(&r.settings),
             Err(e) => {
                 let _ = e.to_string();
             }

@@ -15,7 +15,12 @@ use crate::gaussian::{Gaussian, softplus_inverse, tri_index};
 use crate::linear::Linear;
 #[cfg(feature = "train")]
 use crate::linear::{accumulate, bias_grad_chunks, relu_backward, transpose, weight_grad_chunks};
+use crate::network::PolicyNet;
+#[cfg(feature = "train")]
+use crate::network::{PolicyGradInputs, PolicyTrain, block_rows, chunk_slices};
 use crate::obs_norm::InputNorm;
+#[cfg(feature = "train")]
+use crate::parallel::Parallel;
 use crate::params::Params;
 use crate::rng::Rng;
 use crate::squash::MeanSquash;
@@ -233,6 +238,97 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     /// Multiply-adds of one forward pass for one state.
     pub const fn forward_macs() -> usize {
         OBS * H1 + H1 * H2 + H2 * (ACT + TRI)
+    }
+}
+
+impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize>
+    PolicyNet<OBS, ACT, TRI> for Actor<OBS, ACT, TRI, H1, H2>
+{
+    const HIDDEN: [usize; 2] = [H1, H2];
+    const BLOCKS: usize = 0;
+
+    fn init(&mut self, rng: &mut Rng, init_std: f32, std_floor: f32) {
+        Actor::init(self, rng, init_std, std_floor);
+    }
+    fn input(&self) -> &InputNorm<OBS> {
+        &self.input
+    }
+    fn input_mut(&mut self) -> &mut InputNorm<OBS> {
+        &mut self.input
+    }
+    fn squash(&self) -> &MeanSquash<ACT> {
+        &self.squash
+    }
+    fn squash_mut(&mut self) -> &mut MeanSquash<ACT> {
+        &mut self.squash
+    }
+    fn forward_one(&self, obs: &[f32; OBS], mean: &mut [f32; ACT], chol: &mut [f32; TRI]) {
+        Actor::forward_one(self, obs, mean, chol);
+    }
+    fn mean_action(&self, obs: &[f32; OBS], action: &mut [f32; ACT]) {
+        Actor::mean_action(self, obs, action);
+    }
+    fn forward_macs() -> usize {
+        Actor::<OBS, ACT, TRI, H1, H2>::forward_macs()
+    }
+}
+
+#[cfg(feature = "train")]
+impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize>
+    PolicyTrain<OBS, ACT, TRI> for Actor<OBS, ACT, TRI, H1, H2>
+{
+    type Tape<const B: usize> = ActorTape<B, H1, H2>;
+    type Transposed = ActorTransposed<ACT, TRI, H1, H2>;
+
+    fn forward<const B: usize>(
+        &self,
+        obs: &[[f32; OBS]; B],
+        tape: &mut ActorTape<B, H1, H2>,
+        mean: &mut [[f32; ACT]; B],
+        chol: &mut [[f32; TRI]; B],
+    ) {
+        Actor::forward(self, obs, tape, mean, chol);
+    }
+    fn transpose_into(&self, t: &mut ActorTransposed<ACT, TRI, H1, H2>) {
+        Actor::transpose_into(self, t);
+    }
+    fn backprop<const B: usize>(
+        &self,
+        tape: &mut ActorTape<B, H1, H2>,
+        d_mean: &[[f32; ACT]; B],
+        d_chol: &[[f32; TRI]; B],
+        t: &ActorTransposed<ACT, TRI, H1, H2>,
+    ) {
+        Actor::backprop(self, tape, d_mean, d_chol, t);
+    }
+    fn weight_grads<Par: Parallel, const B: usize>(
+        grad: &mut Self,
+        par: &Par,
+        x: &PolicyGradInputs<'_, OBS, ACT, TRI, ActorTape<B, H1, H2>>,
+    ) -> f64 {
+        let h1 = chunk_slices(x.tapes, |t| &t.h1[..]);
+        let h2 = chunk_slices(x.tapes, |t| &t.h2[..]);
+        let d_h1 = chunk_slices(x.tapes, |t| &t.d_h1[..]);
+        let d_h2 = chunk_slices(x.tapes, |t| &t.d_h2[..]);
+        let inputs = ActorGradInputs {
+            obs: x.obs,
+            h1: &h1,
+            h2: &h2,
+            d_h1: &d_h1,
+            d_h2: &d_h2,
+            d_mean: x.d_mean,
+            d_chol: x.d_chol,
+        };
+        let mut parts: heapless::Vec<_, MAX_PARTS> = grad
+            .grad_parts(block_rows(H1))
+            .into_iter()
+            .map(|p| (p, 0f64))
+            .collect();
+        par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
+        parts.iter().map(|(_, sq)| *sq).sum::<f64>()
+    }
+    fn backward_macs() -> usize {
+        2 * Actor::<OBS, ACT, TRI, H1, H2>::forward_macs() - OBS * H1
     }
 }
 

@@ -160,13 +160,19 @@ impl AdamState {
     ) {
         let c1 = 1.0 / (1.0 - self.beta1_pow);
         let c2 = 1.0 / (1.0 - self.beta2_pow);
-        for i in 0..p.len() {
+        // Every slice cut to the parameters' length first: with the bounds checked once, the
+        // loop vectorises (elementwise, every lane the same operations: the same bits). With a
+        // check per element it ran scalar, 6% of a suite row's update in instructions
+        // (docs/core.md, "Where the time goes").
+        let n = p.len();
+        let (g, m, v) = (&g[..n], &mut m[..n], &mut v[..n]);
+        for i in 0..n {
             let gi = g[i] * scale;
             m[i] = flush_subnormal(cfg.beta1 * m[i] + (1.0 - cfg.beta1) * gi);
             v[i] = flush_subnormal(cfg.beta2 * v[i] + (1.0 - cfg.beta2) * (gi * gi));
             let m_hat = m[i] * c1;
             let v_hat = v[i] * c2;
-            p[i] -= cfg.lr * m_hat / (libm::sqrtf(v_hat) + cfg.eps);
+            p[i] -= cfg.lr * m_hat / (crate::linear::sqrt(v_hat) + cfg.eps);
         }
     }
 }
@@ -238,7 +244,7 @@ mod tests {
             for i in 0..2 {
                 rm[i] = cfg.beta1 * rm[i] + (1.0 - cfg.beta1) * g[i];
                 rv[i] = cfg.beta2 * rv[i] + (1.0 - cfg.beta2) * (g[i] * g[i]);
-                rp[i] -= cfg.lr * (rm[i] * c1) / (libm::sqrtf(rv[i] * c2) + cfg.eps);
+                rp[i] -= cfg.lr * (rm[i] * c1) / (crate::linear::sqrt(rv[i] * c2) + cfg.eps);
                 subnormal_unflushed +=
                     rm[i].is_subnormal() as usize + rv[i].is_subnormal() as usize;
                 assert!(

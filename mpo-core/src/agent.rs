@@ -1,8 +1,8 @@
 //! The act-store-learn loop of training: what a trainer does between the plant's steps, as a
 //! `no_std` state machine the host and a device share.
 //!
-//! [`Agent::act`] picks the action for a state (uniform during the warm-up, then a sample of the
-//! online policy, both from the collector's random stream) and [`Agent::observe`] stores the
+//! [`AgentOf::act`] picks the action for a state (uniform during the warm-up, then a sample of the
+//! online policy, both from the collector's random stream) and [`AgentOf::observe`] stores the
 //! transition and runs the learner updates the schedule calls for (batches from the replay's
 //! sampler stream). The host's trainer and the freestanding device trainer drive the same code,
 //! which is why a run on the device has the bits of the same run in-process.
@@ -12,9 +12,12 @@
 
 use bytemuck::Zeroable;
 
+use crate::actor::Actor;
 use crate::config::{ConfigError, MpoConfig};
+use crate::critic::Critic;
 use crate::explore::{Explorer, NoiseKind};
-use crate::learner::{Learner, UpdateError, UpdateStats};
+use crate::learner::{LearnerOf, UpdateError, UpdateStats};
+use crate::network::{PolicyTrain, ValueNet};
 use crate::parallel::Parallel;
 use crate::replay::{BatchMode, Replay, SampleError, Transition};
 use crate::rng::Rng;
@@ -86,16 +89,16 @@ impl core::fmt::Display for AgentError {
 
 impl core::error::Error for AgentError {}
 
-/// A learner, its replay, the two random streams of acting and sampling, and the schedule.
+/// A learner with the policy `P` and the critic `Q`, its replay, the two random streams of
+/// acting and sampling, and the schedule.
 #[derive(Zeroable)]
-pub struct Agent<
+#[zeroable(bound = "")]
+pub struct AgentOf<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
@@ -104,7 +107,7 @@ pub struct Agent<
     const CAP: usize,
 > {
     /// The learner.
-    pub learner: Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    pub learner: LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     /// Experience.
     pub replay: Replay<CAP, OBS, ACT>,
     /// The collector's stream (warm-up actions and exploration noise) and the noise's state.
@@ -117,7 +120,8 @@ pub struct Agent<
     pub schedule: AgentSchedule,
 }
 
-impl<
+/// The agent with the two-layer MLPs (actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`).
+pub type Agent<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
@@ -131,7 +135,33 @@ impl<
     const M: usize,
     const N: usize,
     const CAP: usize,
-> Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>
+> = AgentOf<
+    OBS,
+    ACT,
+    TRI,
+    Actor<OBS, ACT, TRI, AH1, AH2>,
+    Critic<OBS, ACT, QH1, QH2>,
+    BC,
+    C,
+    L,
+    M,
+    N,
+    CAP,
+>;
+
+impl<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
+> AgentOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N, CAP>
 {
     /// A fresh agent: the learner initialised from `seed`, an empty replay, and the collector
     /// and sampler streams split from one root seeded with `stream_seed` (in that order).
@@ -184,7 +214,7 @@ impl<
 
     /// The action for state `obs` and its log-density under the behaviour policy: uniform in
     /// [-1, 1] during the warm-up, else a sample of the online policy (`mu + L z` with `z`
-    /// from [`Agent::draw_noise`]; for correlated noise the density is the marginal one).
+    /// from [`AgentOf::draw_noise`]; for correlated noise the density is the marginal one).
     pub fn act(&mut self, obs: &[f32; OBS], action: &mut [f32; ACT]) -> f32 {
         if self.in_warmup() {
             return self.explore.uniform_action(action);
@@ -194,7 +224,7 @@ impl<
         self.learner.sample_action_from(obs, &z, action)
     }
 
-    /// The standard-normal draws [`Agent::act`] turns into a sample of the policy after the
+    /// The standard-normal draws [`AgentOf::act`] turns into a sample of the policy after the
     /// warm-up (`action = mu + L z`): independent draws from the collector's stream, with
     /// `noise_corr > 0` their AR(1) combination with the episode's previous draw, or with
     /// `noise_pink` the pink generator's next value. Also for a policy evaluated elsewhere (a
@@ -228,10 +258,10 @@ impl<
 
     /// Stores a transition, counts the step, and runs the updates the schedule calls for,
     /// on `par`, handing each update's statistics to `on_update`.
-    pub fn observe<P: Parallel>(
+    pub fn observe<Par: Parallel>(
         &mut self,
         t: &Transition<OBS, ACT>,
-        par: &P,
+        par: &Par,
         on_update: &mut dyn FnMut(&UpdateStats),
     ) -> Result<(), AgentError> {
         self.replay.push(t);
@@ -259,7 +289,7 @@ impl<
     }
 
     /// One learner update on a batch drawn as the configuration's policy evaluation needs.
-    pub fn update<P: Parallel>(&mut self, par: &P) -> Result<UpdateStats, AgentError> {
+    pub fn update<Par: Parallel>(&mut self, par: &Par) -> Result<UpdateStats, AgentError> {
         self.fill_batch()?;
         self.learner.update_with(par).map_err(AgentError::Update)
     }

@@ -90,6 +90,18 @@ pub struct MpoConfig {
     /// the E-step weighs samples there by that extrapolation. Everything else reads the
     /// unclipped actions (the M-step's likelihood, the penalty objective, Retrace's ratios).
     pub clip_critic_actions: bool,
+    /// The smallest atom of a categorical critic's support (`crate::value_head`; read only by
+    /// critics with more than one output).
+    pub value_min: f32,
+    /// The largest atom of a categorical critic's support.
+    pub value_max: f32,
+    /// A categorical critic's targets: HL-Gauss with this standard deviation in atom spacings
+    /// (Farebrother et al. 2024 recommend 0.75), or two-hot when 0.
+    pub value_sigma: f32,
+    /// Periodic resets (D'Oro et al. 2023): every this many updates, the networks are drawn
+    /// afresh from the learner's stream and their optimisers and the multipliers restart,
+    /// keeping the replay, the observation normalisation and the counters; 0 = never.
+    pub reset_interval: u32,
 }
 
 impl MpoConfig {
@@ -123,6 +135,10 @@ impl MpoConfig {
         obs_norm_interval: 0,
         tanh_mean: false,
         clip_critic_actions: false,
+        value_min: -10.0,
+        value_max: 110.0,
+        value_sigma: 0.75,
+        reset_interval: 0,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -194,6 +210,21 @@ impl MpoConfig {
                 requirement: "at least 1",
             });
         }
+        if !(self.value_min.is_finite()
+            && self.value_max.is_finite()
+            && self.value_max > self.value_min)
+        {
+            return Err(ConfigError {
+                field: "value_max",
+                requirement: "finite and above a finite value_min",
+            });
+        }
+        if !(self.value_sigma.is_finite() && self.value_sigma >= 0.0) {
+            return Err(ConfigError {
+                field: "value_sigma",
+                requirement: "a finite number >= 0 (0 = two-hot targets)",
+            });
+        }
         if self.std_floor >= self.init_std {
             return Err(ConfigError {
                 field: "std_floor",
@@ -205,7 +236,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 29;
+pub const CONFIG_WORDS: usize = 33;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -243,6 +274,10 @@ impl MpoConfig {
             self.obs_norm_interval,
             self.tanh_mean as u32,
             self.clip_critic_actions as u32,
+            f(self.value_min),
+            f(self.value_max),
+            f(self.value_sigma),
+            self.reset_interval,
         ]
     }
 
@@ -286,6 +321,10 @@ impl MpoConfig {
             obs_norm_interval: w[26],
             tanh_mean: flag(w[27], "tanh_mean")?,
             clip_critic_actions: flag(w[28], "clip_critic_actions")?,
+            value_min: f(w[29]),
+            value_max: f(w[30]),
+            value_sigma: f(w[31]),
+            reset_interval: w[32],
         };
         cfg.validate()?;
         Ok(cfg)
@@ -336,6 +375,10 @@ mod tests {
             obs_norm_interval: 1000,
             tanh_mean: true,
             clip_critic_actions: true,
+            value_min: -3.0,
+            value_max: 7.5,
+            value_sigma: 0.0,
+            reset_interval: 1000,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();
@@ -348,6 +391,9 @@ mod tests {
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[28] = 2;
+        assert!(MpoConfig::from_words(&bad).is_err());
+        let mut bad = w;
+        bad[30] = (-4.0f32).to_bits(); // value_max below value_min
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[4] = 2.0f32.to_bits(); // gamma out of range

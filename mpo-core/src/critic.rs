@@ -10,13 +10,17 @@
 use bytemuck::Zeroable;
 
 use crate::actor::{MAX_PARTS, sum_squares};
+use crate::config::MpoConfig;
 use crate::layer_norm::{LayerNorm, param_grad_chunks};
 use crate::linear::{
     Linear, Start, accumulate, bias_grad_chunks, kernel, relu_backward, transpose,
     weight_grad_chunks,
 };
+use crate::network::{ValueGradInputs, ValueNet, block_rows, chunk_slices};
+use crate::parallel::Parallel;
 use crate::params::Params;
 use crate::rng::Rng;
+use crate::value_head::{self, Support};
 
 /// A bias-free weight block `y += x W` (the action part of the critic's first layer).
 #[derive(Clone, Zeroable)]
@@ -44,7 +48,13 @@ impl<const I: usize, const O: usize> Params for Weights<I, O> {
 /// Critic for `OBS` observations and `ACT` actions.
 #[derive(Clone, Zeroable)]
 #[repr(C)]
-pub struct Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize> {
+pub struct Critic<
+    const OBS: usize,
+    const ACT: usize,
+    const H1: usize,
+    const H2: usize,
+    const K: usize = 1,
+> {
     /// First layer, observation block and bias.
     pub l1s: Linear<OBS, H1>,
     /// First layer, action block.
@@ -54,20 +64,21 @@ pub struct Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2:
     pub ln1: LayerNorm<H1>,
     /// Second hidden layer.
     pub l2: Linear<H1, H2>,
-    /// Scalar output.
-    pub out: Linear<H2, 1>,
+    /// Output: the value (`K = 1`) or the logits of a categorical value
+    /// ([`crate::value_head`]).
+    pub out: Linear<H2, K>,
 }
 
-crate::impl_params_for_fields!(Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize> {
+crate::impl_params_for_fields!(Critic<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize, const K: usize> {
     l1s: Linear<OBS, H1>,
     l1a: Weights<ACT, H1>,
     ln1: LayerNorm<H1>,
     l2: Linear<H1, H2>,
-    out: Linear<H2, 1>,
+    out: Linear<H2, K>,
 });
 
-impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
-    Critic<OBS, ACT, H1, H2>
+impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize, const K: usize>
+    Critic<OBS, ACT, H1, H2, K>
 {
     /// Initialises in place with uniform fan-in bounds (fan-in of the first layer is
     /// `OBS + ACT`, as for one layer on the concatenation).
@@ -98,8 +109,8 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         &self,
         pre1_s: &[[f32; H1]; B],
         act: &[[f32; ACT]; B],
-        tape: &mut CriticTape<B, H1, H2>,
-        q: &mut [[f32; 1]; B],
+        tape: &mut CriticTape<B, H1, H2, K>,
+        q: &mut [[f32; K]; B],
         layer_norm: bool,
     ) {
         self.first_layer(act, Start::Rows(pre1_s), tape, layer_norm);
@@ -112,7 +123,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         &self,
         act: &[[f32; ACT]; B],
         start: Start<'_, H1>,
-        tape: &mut CriticTape<B, H1, H2>,
+        tape: &mut CriticTape<B, H1, H2, K>,
         layer_norm: bool,
     ) {
         if layer_norm {
@@ -127,8 +138,8 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
     /// The rest of the forward pass once `tape.h1` holds the first hidden layer.
     fn finish_forward<const B: usize>(
         &self,
-        tape: &mut CriticTape<B, H1, H2>,
-        q: &mut [[f32; 1]; B],
+        tape: &mut CriticTape<B, H1, H2, K>,
+        q: &mut [[f32; K]; B],
     ) {
         self.l2.forward_relu(&tape.h1, &mut tape.h2);
         self.out.forward(&tape.h2, q);
@@ -139,8 +150,8 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         &self,
         obs: &[[f32; OBS]; B],
         act: &[[f32; ACT]; B],
-        tape: &mut CriticTape<B, H1, H2>,
-        q: &mut [[f32; 1]; B],
+        tape: &mut CriticTape<B, H1, H2, K>,
+        q: &mut [[f32; K]; B],
         layer_norm: bool,
     ) {
         self.state_part(obs, &mut tape.h1);
@@ -149,7 +160,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
     }
 
     /// Fills `t` with the transposed weights [`Self::backprop`] multiplies by.
-    pub fn transpose_into(&self, t: &mut CriticTransposed<H1, H2>) {
+    pub fn transpose_into(&self, t: &mut CriticTransposed<H1, H2, K>) {
         transpose(&self.out.w, &mut t.out);
         transpose(&self.l2.w, &mut t.l2);
     }
@@ -158,9 +169,9 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
     /// `tape` holds the chunk's forward activations, `t` this network's transposed weights.
     pub fn backprop<const B: usize>(
         &self,
-        tape: &mut CriticTape<B, H1, H2>,
-        dq: &[[f32; 1]; B],
-        t: &CriticTransposed<H1, H2>,
+        tape: &mut CriticTape<B, H1, H2, K>,
+        dq: &[[f32; K]; B],
+        t: &CriticTransposed<H1, H2, K>,
         layer_norm: bool,
     ) {
         for row in tape.d_h2.iter_mut() {
@@ -195,9 +206,9 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         &self,
         obs: &[[f32; OBS]; B],
         act: &[[f32; ACT]; B],
-        tape: &mut CriticTape<B, H1, H2>,
-        dq: &[[f32; 1]; B],
-        t: &mut CriticTransposed<H1, H2>,
+        tape: &mut CriticTape<B, H1, H2, K>,
+        dq: &[[f32; K]; B],
+        t: &mut CriticTransposed<H1, H2, K>,
         grad: &mut Self,
         layer_norm: bool,
     ) {
@@ -225,7 +236,7 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
     pub fn grad_parts(
         &mut self,
         rows: usize,
-    ) -> heapless::Vec<CriticGradPart<'_, OBS, ACT, H1, H2>, MAX_PARTS> {
+    ) -> heapless::Vec<CriticGradPart<'_, OBS, ACT, H1, H2, K>, MAX_PARTS> {
         let mut parts = heapless::Vec::new();
         let rows = rows.max(H1.div_ceil(MAX_PARTS - 4)).max(1);
         let mut push = |p| {
@@ -249,7 +260,16 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         parts
     }
 
-    /// `Q(s, a)` for one pair.
+    /// Multiply-adds of one forward pass for one pair.
+    pub const fn forward_macs() -> usize {
+        (OBS + ACT) * H1 + H1 * H2 + H2 * K
+    }
+}
+
+impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
+    Critic<OBS, ACT, H1, H2, 1>
+{
+    /// `Q(s, a)` for one pair (a scalar critic).
     pub fn q_one(&self, obs: &[f32; OBS], act: &[f32; ACT], layer_norm: bool) -> f32 {
         let mut h1 = [[0f32; H1]; 1];
         let mut h2 = [[0f32; H2]; 1];
@@ -266,15 +286,17 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
         self.out.forward(&h2, &mut q);
         q[0][0]
     }
-
-    /// Multiply-adds of one forward pass for one pair.
-    pub const fn forward_macs() -> usize {
-        (OBS + ACT) * H1 + H1 * H2 + H2
-    }
 }
 
 /// One independent block of a critic's weight gradient (see [`Critic::grad_parts`]).
-pub enum CriticGradPart<'a, const OBS: usize, const ACT: usize, const H1: usize, const H2: usize> {
+pub enum CriticGradPart<
+    'a,
+    const OBS: usize,
+    const ACT: usize,
+    const H1: usize,
+    const H2: usize,
+    const K: usize = 1,
+> {
     /// The first layer (observation block with the bias, action block).
     First {
         /// Observation block and bias.
@@ -294,7 +316,7 @@ pub enum CriticGradPart<'a, const OBS: usize, const ACT: usize, const H1: usize,
     /// The second layer's bias.
     SecondBias(&'a mut [f32; H2]),
     /// The output layer.
-    Out(&'a mut Linear<H2, 1>),
+    Out(&'a mut Linear<H2, K>),
 }
 
 /// The activations and gradients of a batch held in chunks (entry `c` of every list is chunk
@@ -305,6 +327,7 @@ pub struct CriticGradInputs<
     const ACT: usize,
     const H1: usize,
     const H2: usize,
+    const K: usize = 1,
 > {
     /// States.
     pub obs: &'a [&'a [[f32; OBS]]],
@@ -318,8 +341,8 @@ pub struct CriticGradInputs<
     pub d_h1: &'a [&'a [[f32; H1]]],
     /// Gradients at the second hidden layer's pre-activations.
     pub d_h2: &'a [&'a [[f32; H2]]],
-    /// Gradients at the output.
-    pub dq: &'a [&'a [[f32; 1]]],
+    /// Gradients at the outputs.
+    pub dq: &'a [&'a [[f32; K]]],
     /// Normalised first-layer pre-activations (read only with `layer_norm`).
     pub xhat: &'a [&'a [[f32; H1]]],
     /// Gradients at the layer norm's outputs (read only with `layer_norm`).
@@ -328,12 +351,12 @@ pub struct CriticGradInputs<
     pub layer_norm: bool,
 }
 
-impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
-    CriticGradPart<'_, OBS, ACT, H1, H2>
+impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize, const K: usize>
+    CriticGradPart<'_, OBS, ACT, H1, H2, K>
 {
     /// Computes this block of the gradient (overwriting it) and returns the sum of its
     /// squares.
-    pub fn compute(&mut self, x: &CriticGradInputs<'_, OBS, ACT, H1, H2>) -> f64 {
+    pub fn compute(&mut self, x: &CriticGradInputs<'_, OBS, ACT, H1, H2, K>) -> f64 {
         match self {
             Self::First { s, a } => {
                 weight_grad_chunks(x.obs, x.d_h1, 0, &mut s.w);
@@ -372,9 +395,9 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize>
 /// The critic's weights transposed (output-major), as the backward pass multiplies by them.
 #[derive(Clone, Zeroable)]
 #[repr(C)]
-pub struct CriticTransposed<const H1: usize, const H2: usize> {
+pub struct CriticTransposed<const H1: usize, const H2: usize, const K: usize = 1> {
     /// Output layer.
-    pub out: [[f32; H2]; 1],
+    pub out: [[f32; H2]; K],
     /// Second layer.
     pub l2: [[f32; H1]; H2],
 }
@@ -382,7 +405,7 @@ pub struct CriticTransposed<const H1: usize, const H2: usize> {
 /// Activations and backward scratch for a batch of `B` pairs.
 #[derive(Clone, Zeroable)]
 #[repr(C)]
-pub struct CriticTape<const B: usize, const H1: usize, const H2: usize> {
+pub struct CriticTape<const B: usize, const H1: usize, const H2: usize, const K: usize = 1> {
     /// First hidden activations (after ReLU, or layer norm and `tanh`).
     pub h1: [[f32; H1]; B],
     /// The first layer's normalised pre-activations (layer norm only).
@@ -397,4 +420,140 @@ pub struct CriticTape<const B: usize, const H1: usize, const H2: usize> {
     pub d_h2: [[f32; H2]; B],
     /// Gradient at the first hidden layer.
     pub d_h1: [[f32; H1]; B],
+    /// The outputs (through [`ValueNet`]).
+    pub out: [[f32; K]; B],
+    /// A categorical head's probabilities (through [`ValueNet`]; unused when `K = 1`).
+    pub probs: [[f32; K]; B],
+    /// The loss's gradient at the outputs (through [`ValueNet`]).
+    pub d_out: [[f32; K]; B],
+}
+
+impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize, const K: usize>
+    ValueNet<OBS, ACT> for Critic<OBS, ACT, H1, H2, K>
+{
+    const HIDDEN: [usize; 2] = [H1, H2];
+    const BLOCKS: usize = 0;
+    const BINS: usize = K;
+    type StatePart<const B: usize> = [[f32; H1]; B];
+    type Tape<const B: usize> = CriticTape<B, H1, H2, K>;
+    type Transposed = CriticTransposed<H1, H2, K>;
+
+    fn init(&mut self, rng: &mut Rng) {
+        Critic::init(self, rng);
+    }
+
+    fn state_part<const B: usize>(&self, obs: &[[f32; OBS]; B], part: &mut [[f32; H1]; B]) {
+        Critic::state_part(self, obs, part);
+    }
+
+    fn values_from_state_part<const B: usize>(
+        &self,
+        part: &[[f32; H1]; B],
+        act: &[[f32; ACT]; B],
+        tape: &mut CriticTape<B, H1, H2, K>,
+        q: &mut [f32; B],
+        cfg: &MpoConfig,
+    ) {
+        self.first_layer(act, Start::Rows(part), tape, cfg.critic_layer_norm);
+        self.l2.forward_relu(&tape.h1, &mut tape.h2);
+        self.out.forward(&tape.h2, &mut tape.out);
+        value_head::values(&Support::of(cfg), &tape.out, &mut tape.probs, q);
+    }
+
+    fn values<const B: usize>(
+        &self,
+        obs: &[[f32; OBS]; B],
+        act: &[[f32; ACT]; B],
+        tape: &mut CriticTape<B, H1, H2, K>,
+        q: &mut [f32; B],
+        cfg: &MpoConfig,
+    ) {
+        self.state_part(obs, &mut tape.h1);
+        self.first_layer(act, Start::Y, tape, cfg.critic_layer_norm);
+        self.l2.forward_relu(&tape.h1, &mut tape.h2);
+        self.out.forward(&tape.h2, &mut tape.out);
+        value_head::values(&Support::of(cfg), &tape.out, &mut tape.probs, q);
+    }
+
+    fn loss<const B: usize>(
+        &self,
+        tape: &mut CriticTape<B, H1, H2, K>,
+        q: &[f32; B],
+        y: &[f32; B],
+        inv_b: f32,
+        cfg: &MpoConfig,
+        loss: &mut [f32; B],
+    ) {
+        let s = Support::of(cfg);
+        value_head::loss(
+            &s,
+            &tape.out,
+            &tape.probs,
+            q,
+            y,
+            inv_b,
+            &mut tape.d_out,
+            loss,
+        );
+    }
+
+    fn transpose_into(&self, t: &mut CriticTransposed<H1, H2, K>) {
+        Critic::transpose_into(self, t);
+    }
+
+    fn backprop<const B: usize>(
+        &self,
+        tape: &mut CriticTape<B, H1, H2, K>,
+        t: &CriticTransposed<H1, H2, K>,
+        cfg: &MpoConfig,
+    ) {
+        let dq = tape.d_out;
+        Critic::backprop(self, tape, &dq, t, cfg.critic_layer_norm);
+    }
+
+    fn weight_grads<Par: Parallel, const B: usize>(
+        grad: &mut Self,
+        par: &Par,
+        x: &ValueGradInputs<'_, OBS, ACT, CriticTape<B, H1, H2, K>>,
+        cfg: &MpoConfig,
+    ) -> f64 {
+        let h1 = chunk_slices(x.tapes, |t| &t.h1[..]);
+        let h2 = chunk_slices(x.tapes, |t| &t.h2[..]);
+        let d_h1 = chunk_slices(x.tapes, |t| &t.d_h1[..]);
+        let d_h2 = chunk_slices(x.tapes, |t| &t.d_h2[..]);
+        let dq = chunk_slices(x.tapes, |t| &t.d_out[..]);
+        let xhat = chunk_slices(x.tapes, |t| &t.xhat[..]);
+        let d_y = chunk_slices(x.tapes, |t| &t.d_y[..]);
+        let inputs = CriticGradInputs {
+            obs: x.obs,
+            act: x.act,
+            h1: &h1,
+            h2: &h2,
+            d_h1: &d_h1,
+            d_h2: &d_h2,
+            dq: &dq,
+            xhat: &xhat,
+            d_y: &d_y,
+            layer_norm: cfg.critic_layer_norm,
+        };
+        let mut parts: heapless::Vec<_, MAX_PARTS> = grad
+            .grad_parts(block_rows(H1))
+            .into_iter()
+            .map(|p| (p, 0f64))
+            .collect();
+        par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
+        parts.iter().map(|(_, sq)| *sq).sum::<f64>()
+    }
+
+    fn forward_macs() -> usize {
+        Critic::<OBS, ACT, H1, H2, K>::forward_macs()
+    }
+
+    fn state_macs() -> usize {
+        OBS * H1
+    }
+
+    fn backward_macs() -> usize {
+        2 * Critic::<OBS, ACT, H1, H2, K>::forward_macs() - (OBS + ACT) * H1
+    }
 }

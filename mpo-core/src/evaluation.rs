@@ -84,8 +84,8 @@ pub(crate) struct TargetRows<const ACT: usize, const BC: usize, const L: usize, 
     log_ratio: [[f32; BC]; L],
     /// The target `y` of each row (Retrace's at position 0).
     pub target: [f32; BC],
-    /// The critic's residual `Q(s_0, a_0) - y` of each row.
-    pub err: [f32; BC],
+    /// The critic's loss on each row (from `ValueNet::loss`).
+    pub loss: [f32; BC],
 }
 
 impl<const ACT: usize, const BC: usize, const L: usize, const N: usize> TargetRows<ACT, BC, L, N> {
@@ -179,19 +179,10 @@ impl<const ACT: usize, const BC: usize, const L: usize, const N: usize> TargetRo
         }
     }
 
-    /// The critic's residuals `err = Q - y` for its values `q` at the batch's own actions,
-    /// and the loss gradient `dq = err / B` (`inv_b = 1 / B`) of `0.5 mean (Q - y)^2`.
-    pub fn residuals(&mut self, q: &[[f32; 1]; BC], inv_b: f32, dq: &mut [[f32; 1]; BC]) {
-        for n in 0..BC {
-            self.err[n] = q[n][0] - self.target[n];
-            dq[n][0] = self.err[n] * inv_b;
-        }
-    }
-
-    /// Adds the rows' `0.5 err^2` to `loss` and their targets to `targets`, in row order.
+    /// Adds the rows' losses to `loss` and their targets to `targets`, in row order.
     pub fn add_loss(&self, loss: &mut f32, targets: &mut f32) {
         for n in 0..BC {
-            *loss += 0.5 * self.err[n] * self.err[n];
+            *loss += self.loss[n];
             *targets += self.target[n];
         }
     }

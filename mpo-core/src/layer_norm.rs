@@ -1,4 +1,5 @@
-//! Layer normalisation followed by `tanh`: the critic's optional first-layer activation.
+//! Layer normalisation: the critic's optional first-layer activation (followed by `tanh`) and
+//! the pre-normalisation of the residual networks' blocks ([`crate::residual`]).
 //!
 //! Acme's `LayerNormMLP` (the critic torso of its MPO agents) puts `LayerNorm` and `tanh` after
 //! the first linear layer, which bounds the first hidden layer whatever the scale of the
@@ -8,6 +9,13 @@
 //! Every operation is an IEEE-exact one (`+`, `*`, fma, `sqrtf`) or `libm::tanhf` (portable
 //! software, the same bits on every CPU), and sums run in index order, so the results are
 //! bit-identical across builds and thread counts like the rest of the core.
+//!
+//! The residual networks' form ([`LayerNorm::forward_rows`], [`LayerNorm::backward_rows`]) has
+//! no `tanh` and sums each row in eight lanes ([`sum8`], [`dot8`]: lane `l` adds the entries
+//! `i = l mod 8` in ascending order, then the lanes are added pairwise in a fixed tree). That
+//! order is written out in plain `+` and fma, so the compiler keeps it and vectorises it (one
+//! 8-wide register of partial sums), and a device without vector units computes the same
+//! bits one lane at a time.
 
 use bytemuck::Zeroable;
 
@@ -71,6 +79,7 @@ impl<const N: usize> LayerNorm<N> {
         }
     }
 
+    #[cfg(feature = "train")]
     /// Given `d` = the gradient at the `tanh` outputs `h` (one row per sample), stores the
     /// gradient at `y = g xhat + b` in `d_y` (for the gain and bias gradients) and replaces
     /// `d` by the gradient at the pre-activations `x`:
@@ -101,6 +110,7 @@ impl<const N: usize> LayerNorm<N> {
     }
 }
 
+#[cfg(feature = "train")]
 /// Gain and bias gradients over chunks (chunks in order, rows ascending; overwrites `grad`):
 /// `dg = sum d_y xhat`, `db = sum d_y`.
 pub fn param_grad_chunks<const N: usize>(
@@ -115,6 +125,123 @@ pub fn param_grad_chunks<const N: usize>(
             for o in 0..N {
                 grad.g[o] = mul_add(d[o], x[o], grad.g[o]);
                 grad.b[o] += d[o];
+            }
+        }
+    }
+}
+
+/// Lanes of the fixed-order row sums.
+const LANES: usize = 8;
+
+/// Adds eight lanes pairwise: `((l0 + l1) + (l2 + l3)) + ((l4 + l5) + (l6 + l7))`.
+#[inline(always)]
+fn fold(a: [f32; LANES]) -> f32 {
+    ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
+}
+
+/// `sum_i x[i]` in the fixed eight-lane order (module doc).
+#[inline]
+pub fn sum8(x: &[f32]) -> f32 {
+    let mut acc = [0f32; LANES];
+    let mut chunks = x.chunks_exact(LANES);
+    for c in &mut chunks {
+        for l in 0..LANES {
+            acc[l] += c[l];
+        }
+    }
+    for (l, &v) in chunks.remainder().iter().enumerate() {
+        acc[l] += v;
+    }
+    fold(acc)
+}
+
+/// `sum_i a[i] b[i]` in the fixed eight-lane order, one fma per term.
+#[inline]
+pub fn dot8(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len(), "dot8: lengths differ");
+    let mut acc = [0f32; LANES];
+    let mut ca = a.chunks_exact(LANES);
+    let mut cb = b.chunks_exact(LANES);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        for l in 0..LANES {
+            acc[l] = mul_add(x[l], y[l], acc[l]);
+        }
+    }
+    for (l, (&x, &y)) in ca.remainder().iter().zip(cb.remainder()).enumerate() {
+        acc[l] = mul_add(x, y, acc[l]);
+    }
+    fold(acc)
+}
+
+/// `sum_i (x[i] - c)^2` in the fixed eight-lane order, one fma per term.
+#[inline]
+fn sq_dev8(x: &[f32], c: f32) -> f32 {
+    let mut acc = [0f32; LANES];
+    let mut chunks = x.chunks_exact(LANES);
+    for ch in &mut chunks {
+        for l in 0..LANES {
+            let d = ch[l] - c;
+            acc[l] = mul_add(d, d, acc[l]);
+        }
+    }
+    for (l, &v) in chunks.remainder().iter().enumerate() {
+        let d = v - c;
+        acc[l] = mul_add(d, d, acc[l]);
+    }
+    fold(acc)
+}
+
+impl<const N: usize> LayerNorm<N> {
+    /// One row: `xhat = (x - mean) rstd` with `rstd = 1 / sqrt(var + EPS)`, `y = g xhat + b`;
+    /// returns `rstd`. Mean and variance are [`sum8`]-ordered sums times `1 / N`.
+    #[inline]
+    pub fn normalize(&self, x: &[f32; N], xhat: &mut [f32; N], y: &mut [f32; N]) -> f32 {
+        let inv_n = 1.0 / N as f32;
+        let mean = sum8(x) * inv_n;
+        let var = sq_dev8(x, mean) * inv_n;
+        let r = 1.0 / libm::sqrtf(var + EPS);
+        for o in 0..N {
+            xhat[o] = (x[o] - mean) * r;
+            y[o] = mul_add(self.g[o], xhat[o], self.b[o]);
+        }
+        r
+    }
+
+    /// [`Self::normalize`] for every row (the residual blocks' pre-normalisation).
+    pub fn forward_rows(
+        &self,
+        x: &[[f32; N]],
+        xhat: &mut [[f32; N]],
+        rstd: &mut [f32],
+        y: &mut [[f32; N]],
+    ) {
+        for (((x, xh), r), y) in x.iter().zip(xhat.iter_mut()).zip(rstd.iter_mut()).zip(y) {
+            *r = self.normalize(x, xh, y);
+        }
+    }
+
+    #[cfg(feature = "train")]
+    /// Given `d_y`, the gradient at the outputs of [`Self::forward_rows`], adds the gradient at
+    /// its inputs to `dx`: `dx += rstd (dxhat - mean(dxhat) - xhat mean(dxhat xhat))` with
+    /// `dxhat = g d_y` (the means [`sum8`]- and [`dot8`]-ordered). Adding, not overwriting,
+    /// is what a residual block needs: its input's gradient is the skip's plus this one.
+    pub fn backward_rows(
+        &self,
+        xhat: &[[f32; N]],
+        rstd: &[f32],
+        d_y: &[[f32; N]],
+        dx: &mut [[f32; N]],
+    ) {
+        let inv_n = 1.0 / N as f32;
+        for (((xh, &r), dy), dx) in xhat.iter().zip(rstd).zip(d_y).zip(dx.iter_mut()) {
+            let mut dxh = [0f32; N];
+            for o in 0..N {
+                dxh[o] = self.g[o] * dy[o];
+            }
+            let m1 = sum8(&dxh) * inv_n;
+            let m2 = dot8(&dxh, xh) * inv_n;
+            for o in 0..N {
+                dx[o] += r * (dxh[o] - m1 - xh[o] * m2);
             }
         }
     }

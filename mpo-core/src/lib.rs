@@ -2,9 +2,11 @@
 //! robots: `#![no_std]`, no allocator, fixed sizes, bit-deterministic.
 //!
 //! The paper's concepts are the modules: [`gaussian`] (the policy's full-covariance
-//! distribution), [`actor`] and [`critic`] (the networks, built from [`linear`] layers and,
-//! optionally for the critic, a [`layer_norm`]; the policy's input goes through [`obs_norm`],
-//! its mean through [`squash`]), [`adam`], [`replay`] (which fills a [`batch`]) and [`rng`];
+//! distribution), [`actor`] and [`critic`] (the two-layer networks, built from [`linear`]
+//! layers and, optionally for the critic, a [`layer_norm`]), [`residual`] (the residual,
+//! layer-normalised networks; the learner takes either form of each through the traits of
+//! [`network`]; a critic's output is a value or a categorical distribution, [`value_head`];
+//! the policy's input goes through [`obs_norm`], its mean through [`squash`]), [`adam`], [`replay`] (which fills a [`batch`]) and [`rng`];
 //! the algorithm's steps are [`evaluation`] (policy evaluation targets), [`estep`] and
 //! [`mstep`], each with its per-row work on a batch chunk beside its maths, composed by
 //! [`learner`], which spreads the work over threads through [`parallel`] with the same bits
@@ -21,6 +23,16 @@
 //! `TRI = ACT (ACT + 1) / 2` Cholesky entries, `H1`/`H2` hidden widths.
 #![no_std]
 #![deny(missing_docs)]
+// On a Cortex-M with an FPU, `linear::mul_add` is `core`'s (unstable) fused multiply-add, the
+// `vfma.f32` instruction; that build is made with `-Zbuild-std` (scripts/cortex-m-cargo).
+#![cfg_attr(
+    all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    ),
+    feature(core_float_math)
+)]
 // The exceptions: `linear::mul_add`, which calls the FMA instruction when the build enables it
 // (a register-only intrinsic), and `linear::wide`, the 512-bit kernels chosen at run time.
 #![deny(unsafe_code)]
@@ -44,24 +56,28 @@ pub mod evaluation;
 pub mod explore;
 pub mod export;
 pub mod gaussian;
-#[cfg(feature = "train")]
 pub mod layer_norm;
 #[cfg(feature = "train")]
 pub mod learner;
 pub mod linear;
+pub mod mathf;
 #[cfg(feature = "train")]
 pub mod mstep;
 #[cfg(feature = "train")]
 mod nets;
+pub mod network;
 pub mod obs_norm;
 #[cfg(feature = "train")]
 pub mod parallel;
 pub mod params;
 #[cfg(feature = "train")]
 pub mod replay;
+pub mod residual;
 pub mod rng;
 #[cfg(feature = "train")]
 pub mod selfcheck;
 pub mod squash;
+#[cfg(feature = "train")]
+pub mod value_head;
 
 pub use bytemuck;

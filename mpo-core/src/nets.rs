@@ -1,18 +1,17 @@
 //! The networks as the algorithm's phases use them on one batch chunk of `BC` rows.
 //!
 //! The E-step ([`crate::estep`]) and policy evaluation ([`crate::evaluation`]) ask the target
-//! networks two things, whatever their widths: the target policy at a chunk's states, and
-//! the target critic's values of a set of actions at those states. [`TargetNets`] is that
+//! networks two things, whatever their form: the target policy at a chunk's states, and the
+//! target critic's values of a set of actions at those states. [`TargetNets`] is that
 //! question; [`TargetPass`] answers it with the real networks and the chunk's [`Passes`]
 //! buffers (the learner owns both). The critic's observation part is computed once per set
 //! of states and reused for every set of actions there.
 
 use bytemuck::Zeroable;
 
-use crate::actor::{Actor, ActorTape};
 use crate::config::MpoConfig;
-use crate::critic::{Critic, CriticTape};
 use crate::gaussian::Gaussian;
+use crate::network::{PolicyTrain, ValueNet};
 
 /// The target networks on one chunk of `BC` rows of `OBS` observations and `ACT` actions.
 pub(crate) trait TargetNets<const OBS: usize, const ACT: usize, const BC: usize> {
@@ -26,27 +25,27 @@ pub(crate) trait TargetNets<const OBS: usize, const ACT: usize, const BC: usize>
 /// The buffers of one chunk's network passes: tapes, the policy head's outputs, the critic's
 /// observation part and its values. Shared by the phases one after the other.
 #[derive(Zeroable)]
+#[zeroable(bound = "")]
 pub(crate) struct Passes<
+    const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
 > {
     /// The actor's activations (the M-step backpropagates through the online actor's).
-    pub atape: ActorTape<BC, AH1, AH2>,
+    pub atape: P::Tape<BC>,
     /// The critic's activations (the critic step backpropagates through the online one's).
-    pub ctape: CriticTape<BC, QH1, QH2>,
+    pub ctape: Q::Tape<BC>,
     /// The policy head's means (squashed when the head is).
     pub mean: [[f32; ACT]; BC],
     /// The policy head's raw Cholesky outputs.
     pub chol: [[f32; TRI]; BC],
-    /// The critic's observation part `b + s W_s` at the current states.
-    pub pre1: [[f32; QH1]; BC],
-    /// The critic's outputs.
-    pub q: [[f32; 1]; BC],
+    /// The critic's observation part at the current states.
+    pub pre1: Q::StatePart<BC>,
+    /// The critic's values (expectations of a categorical critic).
+    pub q: [f32; BC],
     /// A clipped copy of actions (with `clip_critic_actions`).
     pub clipped: [[f32; ACT]; BC],
 }
@@ -57,32 +56,28 @@ pub(crate) struct TargetPass<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
 > {
     /// The target policy.
-    pub actor: &'a Actor<OBS, ACT, TRI, AH1, AH2>,
+    pub actor: &'a P,
     /// The target critic.
-    pub critic: &'a Critic<OBS, ACT, QH1, QH2>,
-    /// `std_floor`, `clip_critic_actions` and `critic_layer_norm`.
+    pub critic: &'a Q,
+    /// `std_floor`, `clip_critic_actions` and what the critic reads.
     pub cfg: &'a MpoConfig,
     /// The chunk's buffers.
-    pub buf: &'a mut Passes<ACT, TRI, AH1, AH2, QH1, QH2, BC>,
+    pub buf: &'a mut Passes<OBS, ACT, TRI, P, Q, BC>,
 }
 
 impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
-> TargetNets<OBS, ACT, BC> for TargetPass<'_, OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC>
+> TargetNets<OBS, ACT, BC> for TargetPass<'_, OBS, ACT, TRI, P, Q, BC>
 {
     fn policy_at(&mut self, obs: &[[f32; OBS]; BC], pi: &mut [Gaussian<ACT>; BC]) {
         let b = &mut *self.buf;
@@ -96,14 +91,14 @@ impl<
 
     fn values(&mut self, actions: &[[f32; ACT]; BC]) -> [f32; BC] {
         let b = &mut *self.buf;
-        self.critic.forward_from_state_part(
+        self.critic.values_from_state_part(
             &b.pre1,
             critic_input(self.cfg, actions, &mut b.clipped),
             &mut b.ctape,
             &mut b.q,
-            self.cfg.critic_layer_norm,
+            self.cfg,
         );
-        b.q.map(|q| q[0])
+        b.q
     }
 }
 

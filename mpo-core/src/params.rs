@@ -82,6 +82,23 @@ pub trait Params {
     }
 }
 
+/// An array of parameter sets is one, its elements' tensors in element order (the residual
+/// networks' blocks).
+impl<T: Params, const D: usize> Params for [T; D] {
+    const TENSORS: usize = D * T::TENSORS;
+    fn tensor(&self, k: usize) -> &[f32] {
+        self[k / T::TENSORS].tensor(k % T::TENSORS)
+    }
+    fn tensor_mut(&mut self, k: usize) -> &mut [f32] {
+        self[k / T::TENSORS].tensor_mut(k % T::TENSORS)
+    }
+    fn visit_mut<'a>(&'a mut self, f: &mut dyn FnMut(&'a mut [f32])) {
+        for x in self.iter_mut() {
+            x.visit_mut(f);
+        }
+    }
+}
+
 /// Scales `grads` so their global norm is at most `max_norm`; returns the norm before clipping.
 ///
 /// A non-finite norm is returned as is and the gradients are left untouched, so the caller's

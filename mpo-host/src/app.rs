@@ -31,6 +31,7 @@ static INTERRUPT: AtomicBool = AtomicBool::new(false);
 pub fn main_with(extra: Vec<Instance>) -> ExitCode {
     crate::registry::register(extra);
     let cli = Cli::parse();
+    let _plants = crate::plant::Session::begin(cli.command.plant_args());
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

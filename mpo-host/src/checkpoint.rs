@@ -26,7 +26,8 @@ use std::collections::HashMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use mpo_core::learner::Learner;
+use mpo_core::learner::LearnerOf;
+use mpo_core::network::{PolicyTrain, ValueNet};
 use mpo_core::params::Params;
 use mpo_core::replay::{Replay, ReplayCounters};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
@@ -234,40 +235,96 @@ pub fn params_sha256<P: Params, Q: Params>(actor: &P, critic: &Q) -> String {
     hex(&h.finalize())
 }
 
-/// Tensor names and `[in, out]` shapes of the actor, in tensor order.
-pub fn actor_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
+/// A tensor's name and shape as a checkpoint stores it.
+pub type Layout = Vec<(String, Vec<usize>)>;
+
+/// Tensor names and `[in, out]` shapes of the actor, in tensor order: the two-layer MLP, or
+/// (with `actor_blocks`) the residual network.
+pub fn actor_layout(s: &Sizes) -> Layout {
     let tri = s.act * (s.act + 1) / 2;
-    let [h1, h2] = s.actor;
-    vec![
+    let mut l = named(&[
         ("in.shift", vec![s.obs]),
         ("in.scale", vec![s.obs]),
         ("in.limit", vec![s.obs]),
-        ("l1.w", vec![s.obs, h1]),
-        ("l1.b", vec![h1]),
-        ("l2.w", vec![h1, h2]),
-        ("l2.b", vec![h2]),
-        ("mean.w", vec![h2, s.act]),
+    ]);
+    let h = if s.actor_blocks == 0 {
+        let [h1, h2] = s.actor;
+        l.extend(named(&[
+            ("l1.w", vec![s.obs, h1]),
+            ("l1.b", vec![h1]),
+            ("l2.w", vec![h1, h2]),
+            ("l2.b", vec![h2]),
+        ]));
+        h2
+    } else {
+        let w = s.actor[0];
+        l.extend(named(&[("embed.w", vec![s.obs, w]), ("embed.b", vec![w])]));
+        l.extend(trunk_layout(s.actor, s.actor_blocks));
+        w
+    };
+    l.extend(named(&[
+        ("mean.w", vec![h, s.act]),
         ("mean.b", vec![s.act]),
-        ("chol.w", vec![h2, tri]),
+        ("chol.w", vec![h, tri]),
         ("chol.b", vec![tri]),
         ("squash.bound", vec![s.act]),
-    ]
+    ]));
+    l
 }
 
-/// Tensor names and shapes of the critic, in tensor order.
-pub fn critic_layout(s: &Sizes) -> Vec<(&'static str, Vec<usize>)> {
-    let [h1, h2] = s.critic;
-    vec![
-        ("l1s.w", vec![s.obs, h1]),
-        ("l1s.b", vec![h1]),
-        ("l1a.w", vec![s.act, h1]),
-        ("ln1.g", vec![h1]),
-        ("ln1.b", vec![h1]),
-        ("l2.w", vec![h1, h2]),
-        ("l2.b", vec![h2]),
-        ("out.w", vec![h2, 1]),
-        ("out.b", vec![1]),
-    ]
+/// Tensor names and shapes of the critic, in tensor order: the two-layer MLP, or (with
+/// `critic_blocks`) the residual network; `bins` outputs.
+pub fn critic_layout(s: &Sizes) -> Layout {
+    if s.critic_blocks == 0 {
+        let [h1, h2] = s.critic;
+        return named(&[
+            ("l1s.w", vec![s.obs, h1]),
+            ("l1s.b", vec![h1]),
+            ("l1a.w", vec![s.act, h1]),
+            ("ln1.g", vec![h1]),
+            ("ln1.b", vec![h1]),
+            ("l2.w", vec![h1, h2]),
+            ("l2.b", vec![h2]),
+            ("out.w", vec![h2, s.bins]),
+            ("out.b", vec![s.bins]),
+        ]);
+    }
+    let w = s.critic[0];
+    let mut l = named(&[
+        ("embed_s.w", vec![s.obs, w]),
+        ("embed_s.b", vec![w]),
+        ("embed_a.w", vec![s.act, w]),
+    ]);
+    l.extend(trunk_layout(s.critic, s.critic_blocks));
+    l.extend(named(&[
+        ("out.w", vec![w, s.bins]),
+        ("out.b", vec![s.bins]),
+    ]));
+    l
+}
+
+/// A residual trunk's tensors (`mpo_core::residual::Trunk`): per block its norm, `up`,
+/// `down`; then the final norm.
+fn trunk_layout([w, f]: [usize; 2], blocks: usize) -> Layout {
+    let mut l = Layout::new();
+    for d in 0..blocks {
+        for (name, shape) in [
+            ("norm.g", vec![w]),
+            ("norm.b", vec![w]),
+            ("up.w", vec![w, f]),
+            ("up.b", vec![f]),
+            ("down.w", vec![f, w]),
+            ("down.b", vec![w]),
+        ] {
+            l.push((format!("block{d}.{name}"), shape));
+        }
+    }
+    l.extend(named(&[("norm.g", vec![w]), ("norm.b", vec![w])]));
+    l
+}
+
+fn named(v: &[(&str, Vec<usize>)]) -> Layout {
+    v.iter().map(|(n, s)| (n.to_string(), s.clone())).collect()
 }
 
 /// Owned tensors waiting to be serialised.
@@ -284,7 +341,7 @@ impl Tensors {
         let bytes = v.iter().flat_map(|x| x.to_le_bytes()).collect();
         self.0.push((name, Dtype::U64, vec![v.len()], bytes));
     }
-    fn params<P: Params>(&mut self, prefix: &str, p: &P, layout: &[(&str, Vec<usize>)]) {
+    fn params<P: Params>(&mut self, prefix: &str, p: &P, layout: &[(String, Vec<usize>)]) {
         assert_eq!(layout.len(), P::TENSORS);
         for (k, (name, shape)) in layout.iter().enumerate() {
             self.f32s(format!("{prefix}.{name}"), shape.clone(), p.tensor(k));
@@ -358,7 +415,7 @@ impl<'a> Reader<'a> {
         &self,
         prefix: &str,
         p: &mut P,
-        layout: &[(&str, Vec<usize>)],
+        layout: &[(String, Vec<usize>)],
     ) -> Result<(), CheckpointError> {
         for (k, (name, shape)) in layout.iter().enumerate() {
             self.f32s(&format!("{prefix}.{name}"), shape, p.tensor_mut(k))?;
@@ -462,10 +519,8 @@ pub fn save<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
@@ -474,7 +529,7 @@ pub fn save<
     const CAP: usize,
 >(
     run_dir: &Path,
-    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    learner: &LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     replay: &Replay<CAP, OBS, ACT>,
     meta: &Meta,
 ) -> Result<(), CheckpointError> {
@@ -493,17 +548,15 @@ fn network_tensors<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
     const M: usize,
     const N: usize,
 >(
-    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    learner: &LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     s: &Sizes,
 ) -> Tensors {
     let (al, cl) = (actor_layout(s), critic_layout(s));
@@ -520,17 +573,15 @@ fn optimizer_tensors<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
     const M: usize,
     const N: usize,
 >(
-    learner: &Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+    learner: &LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     s: &Sizes,
 ) -> Tensors {
     let (al, cl) = (actor_layout(s), critic_layout(s));
@@ -829,10 +880,8 @@ impl Verified {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const AH1: usize,
-        const AH2: usize,
-        const QH1: usize,
-        const QH2: usize,
+        P: PolicyTrain<OBS, ACT, TRI>,
+        Q: ValueNet<OBS, ACT>,
         const BC: usize,
         const C: usize,
         const L: usize,
@@ -840,7 +889,7 @@ impl Verified {
         const N: usize,
     >(
         &self,
-        learner: &mut Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+        learner: &mut LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     ) -> Result<(), CheckpointError> {
         let s = &self.meta.sizes;
         let (al, cl) = (actor_layout(s), critic_layout(s));
@@ -867,10 +916,8 @@ impl Verified {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const AH1: usize,
-        const AH2: usize,
-        const QH1: usize,
-        const QH2: usize,
+        P: PolicyTrain<OBS, ACT, TRI>,
+        Q: ValueNet<OBS, ACT>,
         const BC: usize,
         const C: usize,
         const L: usize,
@@ -879,7 +926,7 @@ impl Verified {
         const CAP: usize,
     >(
         &self,
-        learner: &mut Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+        learner: &mut LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
         replay: &mut Replay<CAP, OBS, ACT>,
     ) -> Result<(), CheckpointError> {
         self.load_networks(learner)?;
@@ -902,10 +949,8 @@ impl Verified {
         const OBS: usize,
         const ACT: usize,
         const TRI: usize,
-        const AH1: usize,
-        const AH2: usize,
-        const QH1: usize,
-        const QH2: usize,
+        P: PolicyTrain<OBS, ACT, TRI>,
+        Q: ValueNet<OBS, ACT>,
         const BC: usize,
         const C: usize,
         const L: usize,
@@ -913,7 +958,7 @@ impl Verified {
         const N: usize,
     >(
         &self,
-        learner: &mut Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>,
+        learner: &mut LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     ) -> Result<(), CheckpointError> {
         let s = &self.meta.sizes;
         let (al, cl) = (actor_layout(s), critic_layout(s));

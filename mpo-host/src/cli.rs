@@ -66,6 +66,18 @@ pub enum Command {
     Controller(ControllerArgs),
 }
 
+impl Command {
+    /// The plant flags of the commands that step an environment (`train`, `eval`, `run`).
+    pub fn plant_args(&self) -> Option<&crate::plant::PlantArgs> {
+        match self {
+            Self::Train(a) => Some(&a.plant),
+            Self::Eval(a) => Some(&a.plant),
+            Self::Run(a) => Some(&a.plant),
+            _ => None,
+        }
+    }
+}
+
 /// `mpo run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -104,6 +116,9 @@ pub struct RunArgs {
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// An external plant's program.
+    #[command(flatten)]
+    pub plant: crate::plant::PlantArgs,
 }
 
 /// `mpo controller`.
@@ -251,6 +266,9 @@ pub struct TrainArgs {
     /// offscreen rendering, see `mpo render --help`). Off by default.
     #[arg(long, value_name = "N")]
     pub render_every: Option<u32>,
+    /// An external plant's program.
+    #[command(flatten)]
+    pub plant: crate::plant::PlantArgs,
 }
 
 /// `mpo render`.
@@ -311,4 +329,7 @@ pub struct EvalArgs {
     /// [default: the run's seed, which repeats the run's own evaluations].
     #[arg(long, value_name = "S")]
     pub seed: Option<u32>,
+    /// An external plant's program.
+    #[command(flatten)]
+    pub plant: crate::plant::PlantArgs,
 }

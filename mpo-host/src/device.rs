@@ -224,8 +224,8 @@ impl Device {
         action: &mut [f32],
     ) -> Result<Option<f32>, DeviceError> {
         let mut b = vec![0u8; 9 + 4 * self.obs];
-        b[0..4].copy_from_slice(&reward.to_le_bytes());
-        b[4..8].copy_from_slice(&discount.to_le_bytes());
+        b[0..4].copy_from_slice(&mpo_frames::f32_bytes(reward));
+        b[4..8].copy_from_slice(&mpo_frames::f32_bytes(discount));
         b[8] = last as u8;
         put_f32s(next_obs, &mut b[9..]);
         if last {
@@ -267,6 +267,8 @@ impl Device {
 
     /// Sends a request until a verified reply of kind `want` with its sequence number comes
     /// back; returns the reply's payload.
+    // One retry loop: send, wait, verify, resend on a timeout or a damaged reply, give up
+    // after the limit; its states share the counters of the report, so it stays in one piece.
     fn request(
         &mut self,
         what: &'static str,

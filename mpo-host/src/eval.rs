@@ -4,7 +4,7 @@
 //! successive points of a learning curve differ only by the policy, and `mpo eval` on a
 //! checkpoint reproduces the run's last evaluation exactly.
 
-use sim_bridge::{Environment, SimError, TaskDef};
+use sim_bridge::{SimError, TaskDef};
 
 use crate::policy::Policy;
 
@@ -30,7 +30,7 @@ pub fn evaluate_with(
     let (mut obs64, mut obs) = (vec![0f64; spec.obs_dim], vec![0f32; spec.obs_dim]);
     let (mut act, mut act64) = (vec![0f32; spec.act_dim], vec![0f64; spec.act_dim]);
     for i in 0..episodes {
-        let mut env = task.make(eval_env_seed(seed, i))?;
+        let mut env = crate::plant::make(task, eval_env_seed(seed, i))?;
         env.reset(&mut obs64);
         let mut ret = 0.0;
         loop {

@@ -19,6 +19,7 @@ pub mod link;
 pub mod metrics;
 pub mod outage_log;
 pub mod outputs;
+pub mod plant;
 pub mod plot;
 pub mod policy;
 pub mod pool;
@@ -42,5 +43,7 @@ pub use app::main_with;
 #[doc(hidden)]
 pub mod reexport {
     pub use mpo_core::actor::Actor;
-    pub use mpo_core::agent::Agent;
+    pub use mpo_core::agent::{Agent, AgentOf};
+    pub use mpo_core::critic::Critic;
+    pub use mpo_core::residual::{ResidualActor, ResidualCritic};
 }

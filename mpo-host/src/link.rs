@@ -466,7 +466,7 @@ impl Link {
             misses: p.misses,
             timeouts: p.timeouts,
             rejected_by_controller: p.rejected_by_controller,
-            dropped_replies: p.rejections.total(),
+            dropped_replies: p.rejections.total() + p.stale_policy,
             pushes: p.pushes,
             restarts: self.restarts,
             controller_stats: None,

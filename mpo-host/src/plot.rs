@@ -135,8 +135,31 @@ pub fn write_panels(path: &Path, title: &str, panels: &[Panel]) -> Result<(), St
     root.present().map_err(|x| x.to_string())
 }
 
+/// The return axis: the Control Suite's 0-1000 when every curve and band fits in it, else
+/// the data's range rounded out to a power of ten near a tenth of its span (Gymnasium's returns: Pendulum-v1's
+/// -1500-0, HalfCheetah's thousands).
+fn y_range(series: &[Series], mean: Option<&Series>, target: Option<f64>) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (_, pts) in series.iter().chain(mean) {
+        for &(_, m, sd) in pts {
+            lo = lo.min(m - sd);
+            hi = hi.max(m + sd);
+        }
+    }
+    if let Some(t) = target {
+        (lo, hi) = (lo.min(t), hi.max(t));
+    }
+    if !(lo.is_finite() && hi.is_finite()) || (lo >= 0.0 && hi <= 1000.0) {
+        return (0.0, 1000.0);
+    }
+    let step = 10f64.powf(((hi - lo).max(10.0) / 10.0).log10().floor());
+    let (lo, hi) = ((lo / step).floor() * step, (hi / step).ceil() * step);
+    (lo.min(0.0), if hi > 0.0 { hi } else { 0.0 })
+}
+
 /// One chart in `area`: each series as its mean line, points and +-1 std band, the x axis to
-/// the longest series or the budget, the y axis the Control Suite's 0-1000 return range.
+/// the longest series or the budget, the y axis the Control Suite's 0-1000 return range (or
+/// the data's, [`y_range`]).
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     panel: &Panel,
@@ -157,12 +180,13 @@ fn draw_panel(
         .max()
         .unwrap_or(1)
         .max(1) as f64;
+    let (ylo, yhi) = y_range(series, mean.as_ref(), *target);
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", caption))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..xmax, 0f64..1000f64)
+        .build_cartesian_2d(0f64..xmax, ylo..yhi)
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
@@ -183,7 +207,7 @@ fn draw_panel(
             ))
             .map_err(|x| e(&x))?;
     }
-    draw_series(&mut chart, series, mean.as_ref())
+    draw_series(&mut chart, series, mean.as_ref(), (ylo, yhi))
 }
 
 type Chart<'a, 'b> =
@@ -195,23 +219,24 @@ fn draw_series<'a, 'b: 'a>(
     chart: &mut Chart<'a, 'b>,
     series: &'a [Series],
     mean: Option<&'a Series>,
+    y: (f64, f64),
 ) -> Result<(), String> {
     for (k, s) in series.iter().enumerate() {
         let color = Palette99::pick(k).to_rgba();
         if mean.is_some() {
             draw_thin(chart, s, color)?;
         } else {
-            draw_bold(chart, s, color)?;
+            draw_bold(chart, s, color, y)?;
         }
     }
     if let Some(m) = mean {
-        draw_bold(chart, m, BLACK.to_rgba())?;
+        draw_bold(chart, m, BLACK.to_rgba(), y)?;
     }
     let labelled = series.iter().chain(mean).any(|(l, _)| !l.is_empty());
     if labelled {
         chart
             .configure_series_labels()
-            .position(legend_position(series))
+            .position(legend_position(series, y))
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
@@ -235,15 +260,16 @@ fn draw_bold<'a, 'b: 'a>(
     chart: &mut Chart<'a, 'b>,
     series: &'a Series,
     color: RGBAColor,
+    (ylo, yhi): (f64, f64),
 ) -> Result<(), String> {
     let pts = &series.1;
     let band: Vec<(f64, f64)> = pts
         .iter()
-        .map(|&(x, m, s)| (x as f64, (m + s).min(1000.0)))
+        .map(|&(x, m, s)| (x as f64, (m + s).min(yhi)))
         .chain(
             pts.iter()
                 .rev()
-                .map(|&(x, m, s)| (x as f64, (m - s).max(0.0))),
+                .map(|&(x, m, s)| (x as f64, (m - s).max(ylo))),
         )
         .collect();
     chart
@@ -291,7 +317,7 @@ fn steps_label(x: f64) -> String {
 
 /// Where the legend hides the least: learning curves rise to the right, so below them when
 /// the later half of the points is mostly above the middle of the range, above them otherwise.
-fn legend_position(series: &[Series]) -> SeriesLabelPosition {
+fn legend_position(series: &[Series], (ylo, yhi): (f64, f64)) -> SeriesLabelPosition {
     let xmax = series
         .iter()
         .flat_map(|(_, p)| p.iter().map(|q| q.0))
@@ -301,10 +327,39 @@ fn legend_position(series: &[Series]) -> SeriesLabelPosition {
         .iter()
         .flat_map(|(_, p)| p.iter().filter(|q| 2 * q.0 >= xmax).map(|q| q.1))
         .collect();
-    let high = late.iter().filter(|&&m| m > 500.0).count();
+    let high = late.iter().filter(|&&m| m > (ylo + yhi) / 2.0).count();
     if 2 * high >= late.len() {
         SeriesLabelPosition::LowerRight
     } else {
         SeriesLabelPosition::UpperRight
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn series(points: &[(f64, f64)]) -> Vec<Series> {
+        let pts = points
+            .iter()
+            .enumerate()
+            .map(|(i, &(m, s))| (i as u64, m, s))
+            .collect();
+        vec![(String::new(), pts)]
+    }
+
+    #[test]
+    fn the_return_axis_is_the_suites_unless_the_data_leaves_it() {
+        assert_eq!(
+            y_range(&series(&[(100.0, 50.0), (900.0, 80.0)]), None, None),
+            (0.0, 1000.0)
+        );
+        assert_eq!(y_range(&[], None, None), (0.0, 1000.0));
+        // Pendulum-v1: -1283.7 +- 377.6 untrained, -173.2 +- 99.5 trained.
+        let p = series(&[(-1283.7, 377.6), (-173.2, 99.5)]);
+        assert_eq!(y_range(&p, None, None), (-1700.0, 0.0));
+        // HalfCheetah: thousands.
+        let h = series(&[(-300.0, 50.0), (9535.0, 100.0)]);
+        assert_eq!(y_range(&h, None, Some(12000.0)), (-1000.0, 12000.0));
     }
 }

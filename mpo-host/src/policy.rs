@@ -3,7 +3,9 @@
 //! the actor of a checkpoint (never a learner).
 
 use mpo_core::actor::Actor;
+use mpo_core::network::PolicyNet;
 use mpo_core::params::Params;
+use mpo_core::residual::ResidualActor;
 
 use crate::checkpoint::{CheckpointError, Verified};
 
@@ -16,8 +18,10 @@ pub trait Policy {
     /// The mean action for one observation (`obs.len() == obs_dim()`, `action.len() ==
     /// act_dim()`): what a deployed controller executes.
     fn mean_action(&self, obs: &[f32], action: &mut [f32]);
-    /// Hidden widths.
+    /// Hidden widths (an MLP's two layers, or a residual network's width and inner width).
     fn hidden(&self) -> [usize; 2];
+    /// Residual blocks (0: an MLP).
+    fn blocks(&self) -> usize;
     /// Scalar parameters (what the firmware keeps in flash, 4 bytes each).
     fn parameters(&self) -> usize;
     /// The policy as Rust source for the firmware (`mpo_core::export`), with `origin` in its
@@ -27,63 +31,73 @@ pub trait Policy {
     fn push(&self, link: &mut crate::link::Link) -> Result<(), mpo_link::LinkError>;
 }
 
-impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, const H2: usize> Policy
-    for Actor<OBS, ACT, TRI, H1, H2>
-{
-    fn obs_dim(&self) -> usize {
-        OBS
-    }
-    fn act_dim(&self) -> usize {
-        ACT
-    }
-    fn mean_action(&self, obs: &[f32], action: &mut [f32]) {
-        let obs: &[f32; OBS] = obs.try_into().expect("observation of the policy's size");
-        let action: &mut [f32; ACT] = action.try_into().expect("action of the policy's size");
-        Actor::mean_action(self, obs, action);
-    }
-    fn hidden(&self) -> [usize; 2] {
-        [H1, H2]
-    }
-    fn parameters(&self) -> usize {
-        self.len()
-    }
-    fn firmware_source(&self, origin: &str) -> String {
-        let mut src = String::new();
-        mpo_core::export::write_actor_source(self, origin, &mut src)
-            .expect("formatting into a String cannot fail");
-        src
-    }
-    fn push(&self, link: &mut crate::link::Link) -> Result<(), mpo_link::LinkError> {
-        link.push(self)
-    }
+/// [`Policy`] for a network of the core's, given how it writes its firmware source.
+macro_rules! policy_for {
+    ($ty:ty, [$($g:ident),*], $write:path) => {
+        impl<const OBS: usize, const ACT: usize, const TRI: usize, $(const $g: usize),*> Policy
+            for $ty
+        {
+            fn obs_dim(&self) -> usize {
+                OBS
+            }
+            fn act_dim(&self) -> usize {
+                ACT
+            }
+            fn mean_action(&self, obs: &[f32], action: &mut [f32]) {
+                let obs: &[f32; OBS] = obs.try_into().expect("observation of the policy's size");
+                let action: &mut [f32; ACT] =
+                    action.try_into().expect("action of the policy's size");
+                PolicyNet::mean_action(self, obs, action);
+            }
+            fn hidden(&self) -> [usize; 2] {
+                <Self as PolicyNet<OBS, ACT, TRI>>::HIDDEN
+            }
+            fn blocks(&self) -> usize {
+                <Self as PolicyNet<OBS, ACT, TRI>>::BLOCKS
+            }
+            fn parameters(&self) -> usize {
+                self.len()
+            }
+            fn firmware_source(&self, origin: &str) -> String {
+                let mut src = String::new();
+                $write(self, origin, &mut src).expect("formatting into a String cannot fail");
+                src
+            }
+            fn push(&self, link: &mut crate::link::Link) -> Result<(), mpo_link::LinkError> {
+                link.push(self)
+            }
+        }
+    };
 }
+
+policy_for!(
+    Actor<OBS, ACT, TRI, H1, H2>,
+    [H1, H2],
+    mpo_core::export::write_actor_source
+);
+policy_for!(
+    ResidualActor<OBS, ACT, TRI, W, F, D>,
+    [W, F, D],
+    mpo_core::export::write_residual_actor_source
+);
 
 /// The online policy of a verified checkpoint whose sizes are these (the instance's
 /// `policy`; the caller has matched the checkpoint's sizes to the instance).
-pub fn load<
-    const OBS: usize,
-    const ACT: usize,
-    const TRI: usize,
-    const H1: usize,
-    const H2: usize,
->(
+pub fn load<const OBS: usize, const ACT: usize, const TRI: usize, P>(
     v: &Verified,
-) -> Result<Box<dyn Policy>, CheckpointError> {
-    let mut actor: Box<Actor<OBS, ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
+) -> Result<Box<dyn Policy>, CheckpointError>
+where
+    P: PolicyNet<OBS, ACT, TRI> + Policy,
+{
+    let mut actor: Box<P> = bytemuck::zeroed_box();
     v.load_actor(actor.as_mut())?;
     Ok(actor)
 }
 
 /// Serves a policy of these sizes in the controller process (the instance's `serve`).
-pub fn serve<
-    const OBS: usize,
-    const ACT: usize,
-    const TRI: usize,
-    const H1: usize,
-    const H2: usize,
->(
+pub fn serve<const OBS: usize, const ACT: usize, const TRI: usize, P: PolicyNet<OBS, ACT, TRI>>(
     opts: &mpo_link::controller::ControllerOptions,
     ready: &mut dyn FnMut(),
 ) -> Result<mpo_link::controller::ControllerStats, mpo_link::LinkError> {
-    mpo_link::controller::serve::<OBS, ACT, TRI, H1, H2>(opts, ready)
+    mpo_link::controller::serve_policy::<OBS, ACT, TRI, P>(opts, ready)
 }

@@ -13,6 +13,14 @@
 //! in quick succession) and then sleep on a condition variable. A panic in an item is caught
 //! on the worker and re-raised on the calling thread after the job. Dropping the pool stops
 //! and joins the workers.
+//!
+//! A job costs no system call and no lock while the workers spin: the job's pointer travels
+//! in two atomic words published before the claim word, and the caller signals the condition
+//! variable only when a worker has said it is going to sleep (a count both sides read and
+//! write with sequentially consistent order, so either the caller sees the sleeper or the
+//! sleeper sees the new job). An update issues dozens of jobs (every Newton iteration of the
+//! E-step's two temperature solves is one), so a lock per item and a `futex` wake per job
+//! were a measurable share of a two-thread update (docs/core.md, "Where the time goes").
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
@@ -39,8 +47,11 @@ struct Shared {
     claim: AtomicU64,
     /// Items of the current job not yet finished.
     pending: AtomicUsize,
-    /// The current job, valid while `pending > 0` (see the module doc).
-    job: Mutex<Option<JobPtr>>,
+    /// The current job's pointer (a `*const Job` as its two words), valid for a thread that
+    /// has claimed an item of the current generation (see the module doc).
+    job: [AtomicUsize; 2],
+    /// Workers that are about to sleep or sleeping on `wake`.
+    sleepers: AtomicUsize,
     /// A worker's item panicked during the current job.
     panicked: AtomicBool,
     /// Sleepers wait here for a new generation or shutdown.
@@ -52,14 +63,8 @@ struct Shared {
     started: AtomicUsize,
 }
 
-/// A pointer to the caller's job, erased to `'static` (see the safety argument in
-/// [`Pool::run`]).
-#[derive(Clone, Copy)]
-struct JobPtr(*const Job<'static>);
-
-// SAFETY: the pointee is `Sync` (the job type requires it), so sharing the pointer between
-// threads is sound; its lifetime is handled by the protocol in `Pool::run`.
-unsafe impl Send for JobPtr {}
+/// The two words of a `*const Job` (a pointer to an unsized closure: data and vtable).
+type JobWords = [usize; 2];
 
 /// A pool of `threads - 1` workers plus the calling thread.
 pub struct Pool {
@@ -75,7 +80,8 @@ impl Pool {
         let shared = Arc::new(Shared {
             claim: AtomicU64::new(0),
             pending: AtomicUsize::new(0),
-            job: Mutex::new(None),
+            job: [AtomicUsize::new(0), AtomicUsize::new(0)],
+            sleepers: AtomicUsize::new(0),
             panicked: AtomicBool::new(false),
             wake: Condvar::new(),
             sleep_lock: Mutex::new(()),
@@ -128,8 +134,12 @@ impl Pool {
         // SAFETY: the pointer is only dereferenced by a thread that has claimed an item of
         // this generation (see `claim`), and this function does not return before every
         // claimed item has finished (`pending` reaches 0), so the borrow outlives every use.
-        let erased: *const Job<'static> = unsafe { std::mem::transmute(job as *const Job<'_>) };
-        *s.job.lock().expect("pool lock") = Some(JobPtr(erased));
+        // A fat pointer is two words (data, vtable), which is what `JobWords` holds.
+        let words: JobWords = unsafe { std::mem::transmute(job as *const Job<'_>) };
+        // Published before the claim word (release): a thread that claims an item of this
+        // generation (acquire) reads these words.
+        s.job[0].store(words[0], Ordering::Relaxed);
+        s.job[1].store(words[1], Ordering::Relaxed);
         s.pending.store(items, Ordering::Relaxed);
         s.panicked.store(false, Ordering::Relaxed);
         // The item count travels in the claim word itself: a worker still claiming for the
@@ -138,9 +148,12 @@ impl Pool {
         // and ran it on this job, and the job could return while that item still ran).
         s.claim.store(
             (generation << 32) | ((items as u64) << 16),
-            Ordering::Release,
+            Ordering::SeqCst,
         );
-        {
+        // A worker going to sleep counts itself, then reads the claim word (both SeqCst);
+        // this side wrote the claim word, then reads the count: one of the two sees the
+        // other, so a sleeper is either woken here or never sleeps.
+        if s.sleepers.load(Ordering::SeqCst) > 0 {
             let _g = s.sleep_lock.lock().expect("pool lock");
             s.wake.notify_all();
         }
@@ -148,7 +161,6 @@ impl Pool {
         while s.pending.load(Ordering::Acquire) != 0 {
             std::hint::spin_loop();
         }
-        *s.job.lock().expect("pool lock") = None;
         if s.panicked.load(Ordering::Relaxed) {
             panic!("a learner work item panicked on a pool thread");
         }
@@ -158,14 +170,14 @@ impl Pool {
 /// Claims and runs items of `generation` until none are left.
 fn work(s: &Shared, generation: u64) {
     while let Some(k) = claim(s, generation) {
-        let job = s
-            .job
-            .lock()
-            .expect("pool lock")
-            .expect("a job is published");
+        let words: JobWords = [
+            s.job[0].load(Ordering::Relaxed),
+            s.job[1].load(Ordering::Relaxed),
+        ];
         // SAFETY: item `k` of this generation is claimed and not finished, so the caller of
-        // `Pool::run` is still waiting and the job is alive (module doc).
-        let f = unsafe { &*job.0 };
+        // `Pool::run` is still waiting, the job is alive and its words (published before the
+        // claim word, which the claim read with acquire order) are this job's (module doc).
+        let f: &Job<'_> = unsafe { &*std::mem::transmute::<JobWords, *const Job<'_>>(words) };
         if catch_unwind(AssertUnwindSafe(|| f(k))).is_err() {
             s.panicked.store(true, Ordering::Relaxed);
         }
@@ -214,15 +226,16 @@ fn worker(s: &Shared) {
                 continue;
             }
             let guard = s.sleep_lock.lock().expect("pool lock");
-            let g = s.claim.load(Ordering::Acquire) >> 32;
-            if g != seen || s.shutdown.load(Ordering::Acquire) {
-                continue;
+            s.sleepers.fetch_add(1, Ordering::SeqCst);
+            let g = s.claim.load(Ordering::SeqCst) >> 32;
+            if g == seen && !s.shutdown.load(Ordering::Acquire) {
+                drop(
+                    s.wake
+                        .wait_timeout(guard, Duration::from_millis(100))
+                        .expect("pool lock"),
+                );
             }
-            drop(
-                s.wake
-                    .wait_timeout(guard, Duration::from_millis(100))
-                    .expect("pool lock"),
-            );
+            s.sleepers.fetch_sub(1, Ordering::SeqCst);
         };
         seen = generation;
         work(s, generation);

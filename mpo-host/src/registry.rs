@@ -35,7 +35,7 @@ pub fn find(sizes: &Sizes) -> Result<Instance, MissingInstance> {
         .into_iter()
         .find(|i| i.sizes == *sizes)
         .ok_or_else(|| MissingInstance {
-            sizes: *sizes,
+            sizes: Box::new(*sizes),
             file: local_sizes_file(),
         })
 }
@@ -65,8 +65,8 @@ pub const EXIT_REBUILD: u8 = 3;
     }
 )]
 pub struct MissingInstance {
-    /// The sizes asked for.
-    pub sizes: Sizes,
+    /// The sizes asked for (boxed: errors stay small).
+    pub sizes: Box<Sizes>,
     /// The file the build script reads.
     pub file: PathBuf,
 }
@@ -134,7 +134,7 @@ mod tests {
         let mut sizes = crate::table::rows()[0].sizes;
         sizes.obs = 4095;
         let m = MissingInstance {
-            sizes,
+            sizes: Box::new(sizes),
             file: dir.join("local.toml"),
         };
         assert!(m.request().unwrap());
@@ -145,7 +145,7 @@ mod tests {
         assert_eq!(parsed["spec"].as_array().unwrap().len(), 1);
         let _ = std::fs::remove_dir_all(&dir);
         let gone = MissingInstance {
-            sizes,
+            sizes: Box::new(sizes),
             file: dir.join("nowhere/local.toml"),
         };
         assert!(!gone.request().unwrap());

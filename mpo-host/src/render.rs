@@ -280,6 +280,9 @@ impl Pick {
 
 /// `mpo render` for a loaded policy: the video and/or the contact sheet of `opts`. Its length
 /// is the frame sink (caption, video, tiles) and the summary's field list.
+// Long for its summary's field list (a third of it) and the frame callback, which must see
+// the video, the strip and the caption at once; the steps it calls are each their own
+// function (`check_request`, `timing`, `rollout`, `write_sheet`).
 pub fn render(
     task: &TaskDef,
     checkpoint_env_steps: u64,

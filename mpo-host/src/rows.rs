@@ -195,18 +195,13 @@ pub fn default_row(task: &TaskDef) -> Row {
     Row {
         task: task.name().into(),
         net: table::DEFAULT_NET.into(),
-        sizes: Sizes {
-            obs: spec.obs_dim,
-            act: spec.act_dim,
-            actor: [256, 256],
-            critic: [256, 256],
-            batch: 256,
-            chunks: 4,
-            seq: 8,
-            m: 20,
-            n: 20,
-            replay_capacity: 1_000_000,
-        },
+        sizes: Sizes::mlp(
+            spec.obs_dim,
+            spec.act_dim,
+            [256, 256],
+            [256, 256],
+            [256, 4, 8, 20, 20, 1_000_000],
+        ),
         steps: whole(1_000_000),
         schedule: Schedule {
             eval_interval: whole(SUITE_SCHEDULE.eval_interval),
@@ -222,6 +217,9 @@ pub fn default_row(task: &TaskDef) -> Row {
 struct FileRow {
     actor: Option<[usize; 2]>,
     critic: Option<[usize; 2]>,
+    actor_blocks: Option<usize>,
+    critic_blocks: Option<usize>,
+    bins: Option<usize>,
     batch: Option<usize>,
     chunks: Option<usize>,
     seq: Option<usize>,
@@ -272,6 +270,9 @@ fn apply_file_row(
     let z = &mut row.sizes;
     z.actor = r.actor.unwrap_or(z.actor);
     z.critic = r.critic.unwrap_or(z.critic);
+    z.actor_blocks = r.actor_blocks.unwrap_or(z.actor_blocks);
+    z.critic_blocks = r.critic_blocks.unwrap_or(z.critic_blocks);
+    z.bins = r.bins.unwrap_or(z.bins);
     z.batch = r.batch.unwrap_or(z.batch);
     // Four chunks where the batch splits so (two threads' work, evenly), else two, else one.
     let batch = z.batch;

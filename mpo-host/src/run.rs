@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use hdrhistogram::Histogram;
 use mpo_link::service::monotonic_ns;
 use serde::{Deserialize, Serialize};
-use sim_bridge::{Environment, SimError, TaskDef};
+use sim_bridge::{SimError, TaskDef};
 
 use crate::eval::{eval_env_seed, mean_std};
 use crate::link::{
@@ -400,7 +400,7 @@ fn episodes(
         (Limit::Seconds(_), b) => stepping >= b.expect("seconds limit"),
     };
     'episodes: for episode in 0u32.. {
-        let mut env = req.task.make(eval_env_seed(req.seed, episode))?;
+        let mut env = crate::plant::make(&req.task, eval_env_seed(req.seed, episode))?;
         env.reset(&mut obs64);
         let (mut ret, mut episode_step) = (0.0, 0u32);
         let started = Instant::now();
@@ -483,6 +483,8 @@ fn show(
 
 /// The human-readable table of a run (printed on stderr). One `push_str` per line of the
 /// table, in the order printed: longer than a screen, but read top to bottom like its output.
+// One `push_str` per line of the printed table, in the order printed: long, but read top to
+// bottom as the output it makes (splitting it would scatter the layout).
 pub fn table(s: &RunSummary) -> String {
     let mut t = String::new();
     let mode = match s.rate_hz {

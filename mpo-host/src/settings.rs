@@ -138,6 +138,21 @@ pub struct MpoSettings {
     /// in a file or checkpoint written before it existed: off, as those runs trained.
     #[serde(default)]
     pub clip_critic_actions: bool,
+    /// A categorical critic's smallest atom (read only by rows with `bins > 1`). Missing in a
+    /// file or checkpoint written before it existed: the default, which those runs never read.
+    #[serde(default = "MpoSettings::default_value_min")]
+    pub value_min: f64,
+    /// A categorical critic's largest atom.
+    #[serde(default = "MpoSettings::default_value_max")]
+    pub value_max: f64,
+    /// A categorical critic's targets: HL-Gauss with this standard deviation in atom
+    /// spacings, or two-hot when 0.
+    #[serde(default = "MpoSettings::default_value_sigma")]
+    pub value_sigma: f64,
+    /// Learner updates between periodic resets of the networks (D'Oro et al. 2023); 0 = never.
+    /// Missing in a file or checkpoint written before it existed: 0, as those runs trained.
+    #[serde(default)]
+    pub reset_interval: u32,
 }
 
 impl MpoSettings {
@@ -172,7 +187,23 @@ impl MpoSettings {
         obs_norm_interval: 0,
         tanh_mean: false,
         clip_critic_actions: false,
+        value_min: -10.0,
+        value_max: 110.0,
+        value_sigma: 0.75,
+        reset_interval: 0,
     };
+
+    fn default_value_min() -> f64 {
+        Self::REPORT.value_min
+    }
+
+    fn default_value_max() -> f64 {
+        Self::REPORT.value_max
+    }
+
+    fn default_value_sigma() -> f64 {
+        Self::REPORT.value_sigma
+    }
 
     /// The learner's configuration (one `f64 -> f32` rounding per field). Every field is
     /// written out, with no `..` default: a field the core gains fails to compile here until
@@ -210,6 +241,10 @@ impl MpoSettings {
             obs_norm_interval: self.obs_norm_interval,
             tanh_mean: self.tanh_mean,
             clip_critic_actions: self.clip_critic_actions,
+            value_min: self.value_min as f32,
+            value_max: self.value_max as f32,
+            value_sigma: self.value_sigma as f32,
+            reset_interval: self.reset_interval,
         }
     }
 }

@@ -11,9 +11,10 @@ pub struct Sizes {
     pub obs: usize,
     /// Action size.
     pub act: usize,
-    /// The policy's hidden widths.
+    /// The policy's hidden widths: the two layers of an MLP, or with `actor_blocks > 0` a
+    /// residual network's width and its blocks' inner width.
     pub actor: [usize; 2],
-    /// The critic's hidden widths.
+    /// The critic's hidden widths (as `actor`, with `critic_blocks`).
     pub critic: [usize; 2],
     /// Batch size `B` (rows per update).
     pub batch: usize,
@@ -28,6 +29,29 @@ pub struct Sizes {
     pub n: usize,
     /// Replay capacity in transitions.
     pub replay_capacity: usize,
+    /// Residual blocks of the policy (`mpo_core::residual`); 0 (the default, not written) =
+    /// the two-layer MLP.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub actor_blocks: usize,
+    /// Residual blocks of the critic; 0 (the default, not written) = the two-layer MLP.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub critic_blocks: usize,
+    /// The critic's outputs: 1 (the default, not written) = a value; more = the atoms of a
+    /// categorical value (`mpo_core::value_head`).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub bins: usize,
+}
+
+fn is_zero(x: &usize) -> bool {
+    *x == 0
+}
+
+fn is_one(x: &usize) -> bool {
+    *x == 1
+}
+
+fn one() -> usize {
+    1
 }
 
 /// Largest observation or action size, hidden width, batch, sample count and replay a task
@@ -44,6 +68,9 @@ pub const LIMITS: Sizes = Sizes {
     m: 256,
     n: 256,
     replay_capacity: 10_000_000,
+    actor_blocks: 8,
+    critic_blocks: 8,
+    bins: 1024,
 };
 
 impl Sizes {
@@ -52,7 +79,33 @@ impl Sizes {
         self.act * (self.act + 1) / 2
     }
 
-    /// Every size within [`LIMITS`] and at least 1, the batch a multiple of its chunks.
+    /// The MLP sizes of the fields before the residual networks (no blocks, a scalar critic).
+    pub const fn mlp(
+        obs: usize,
+        act: usize,
+        actor: [usize; 2],
+        critic: [usize; 2],
+        [batch, chunks, seq, m, n, replay_capacity]: [usize; 6],
+    ) -> Self {
+        Self {
+            obs,
+            act,
+            actor,
+            critic,
+            batch,
+            chunks,
+            seq,
+            m,
+            n,
+            replay_capacity,
+            actor_blocks: 0,
+            critic_blocks: 0,
+            bins: 1,
+        }
+    }
+
+    /// Every size within [`LIMITS`] and at least 1 (blocks at least 0), the batch a multiple
+    /// of its chunks.
     pub fn check(&self) -> Result<(), String> {
         let l = &LIMITS;
         let fields: [(&str, usize, usize); 12] = [
@@ -74,6 +127,20 @@ impl Sizes {
                 return Err(format!("{name} = {v} must be in 1..={max}"));
             }
         }
+        for (name, v, max) in [
+            ("actor_blocks", self.actor_blocks, l.actor_blocks),
+            ("critic_blocks", self.critic_blocks, l.critic_blocks),
+        ] {
+            if v > max {
+                return Err(format!("{name} = {v} must be in 0..={max}"));
+            }
+        }
+        if self.bins == 0 || self.bins > l.bins {
+            return Err(format!(
+                "bins = {} must be 1 (a value) or in 2..={} (the atoms of a categorical value)",
+                self.bins, l.bins
+            ));
+        }
         if !self.batch.is_multiple_of(self.chunks) {
             return Err(format!(
                 "batch = {} must be a multiple of chunks = {}",
@@ -84,16 +151,23 @@ impl Sizes {
     }
 
     /// One line for messages: `obs 5, act 1, actor 64-64, critic 64-64, batch 128 in 2, seq 8,
-    /// M 20, N 20, replay 100000`.
+    /// M 20, N 20, replay 100000` (a residual network as `actor 128/512 x 1`, a categorical
+    /// critic with `, bins 101` after it).
     pub fn describe(&self) -> String {
+        let net = |w: [usize; 2], blocks: usize| match blocks {
+            0 => format!("{}-{}", w[0], w[1]),
+            d => format!("{}/{} x {d}", w[0], w[1]),
+        };
+        let bins = match self.bins {
+            1 => String::new(),
+            k => format!(", bins {k}"),
+        };
         format!(
-            "obs {}, act {}, actor {}-{}, critic {}-{}, batch {} in {}, seq {}, M {}, N {}, replay {}",
+            "obs {}, act {}, actor {}, critic {}{bins}, batch {} in {}, seq {}, M {}, N {}, replay {}",
             self.obs,
             self.act,
-            self.actor[0],
-            self.actor[1],
-            self.critic[0],
-            self.critic[1],
+            net(self.actor, self.actor_blocks),
+            net(self.critic, self.critic_blocks),
             self.batch,
             self.chunks,
             self.seq,
@@ -105,8 +179,18 @@ impl Sizes {
 
     /// The line of `sizes/local.toml` that asks the build for these sizes.
     pub fn toml_line(&self) -> String {
+        let mut extra = String::new();
+        if self.actor_blocks > 0 {
+            extra += &format!(", actor_blocks = {}", self.actor_blocks);
+        }
+        if self.critic_blocks > 0 {
+            extra += &format!(", critic_blocks = {}", self.critic_blocks);
+        }
+        if self.bins != 1 {
+            extra += &format!(", bins = {}", self.bins);
+        }
         format!(
-            "{{ obs = {}, act = {}, actor = [{}, {}], critic = [{}, {}], batch = {}, chunks = {}, seq = {}, m = {}, n = {}, replay_capacity = {} }}",
+            "{{ obs = {}, act = {}, actor = [{}, {}], critic = [{}, {}], batch = {}, chunks = {}, seq = {}, m = {}, n = {}, replay_capacity = {}{extra} }}",
             self.obs,
             self.act,
             self.actor[0],

@@ -57,6 +57,8 @@ pub trait Spec: 'static {
     const SIZES: Sizes;
     /// The policy network: what the firmware and the controller run.
     type Policy;
+    /// The critic.
+    type Critic;
     /// The whole learning state on the host: learner, replay, random streams.
     type Agent;
     /// Function pointers into the code compiled for these sizes.
@@ -76,18 +78,27 @@ pub const fn splits(b: usize, c: usize) -> bool {
 ///     /// My robot: 11 observations, 1 action.
 ///     pub MyRobot = obs 11, act 1, actor [256, 256], critic [256, 256], batch 256 / 4,
 ///         seq 8, samples 20 20, replay 1_000_000;
+///     /// The same robot with residual networks and a categorical critic of 101 atoms.
+///     pub MyRobotSimba = obs 11, act 1, actor [128, 256] x 1, critic [256, 512] x 2, bins 101,
+///         batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
 /// }
 /// use mpo_host::spec::Spec;
 /// assert_eq!(MyRobot::SIZES.tri(), 1);
+/// assert_eq!(MyRobotSimba::SIZES.critic_blocks, 2);
+/// assert_eq!(MyRobotSimba::SIZES.bins, 101);
 /// ```
 ///
-/// `batch B / C` splits the batch into `C` equal chunks (one thread's work each); `samples M
-/// N` are the E-step's action samples per state and the policy-evaluation targets' next-action
-/// samples.
+/// `actor [A1, A2]` is a two-layer MLP of those widths; `actor [W, F] x D` a residual network
+/// (`mpo_core::residual`) of width `W` with `D` blocks of inner width `F`; the same for the
+/// critic. `bins K` (optional) makes the critic categorical over `K` atoms
+/// (`mpo_core::value_head`); without it the critic outputs one value. `batch B / C` splits the
+/// batch into `C` equal chunks (one thread's work each); `samples M N` are the E-step's action
+/// samples per state and the policy-evaluation targets' next-action samples.
 #[macro_export]
 macro_rules! spec {
     ($( $(#[$doc:meta])* $vis:vis $name:ident = obs $obs:literal, act $act:literal,
-        actor [$a1:literal, $a2:literal], critic [$q1:literal, $q2:literal],
+        actor [$a1:literal, $a2:literal] $(x $ad:literal)?,
+        critic [$q1:literal, $q2:literal] $(x $qd:literal)?, $(bins $k:literal,)?
         batch $b:literal / $c:literal, seq $l:literal, samples $m:literal $n:literal,
         replay $cap:literal; )*) => {$(
         $(#[$doc])*
@@ -96,24 +107,57 @@ macro_rules! spec {
             const SIZES: $crate::spec::Sizes = $crate::spec::Sizes {
                 obs: $obs, act: $act, actor: [$a1, $a2], critic: [$q1, $q2], batch: $b,
                 chunks: $c, seq: $l, m: $m, n: $n, replay_capacity: $cap,
+                actor_blocks: 0 $(+ $ad)?, critic_blocks: 0 $(+ $qd)?, bins: 1 $(- 1 + $k)?,
             };
-            type Policy = $crate::reexport::Actor<$obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2>;
-            type Agent = $crate::reexport::Agent<
-                $obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2, $q1, $q2, { $b / $c }, $c,
-                $l, $m, $n, $cap,
+            type Policy = $crate::__spec_policy!($obs, $act, $a1, $a2, [$($ad)?]);
+            type Critic = $crate::__spec_critic!($obs, $act, $q1, $q2, [$($qd)?], [$($k)?]);
+            type Agent = $crate::reexport::AgentOf<
+                $obs, $act, { $act * ($act + 1) / 2 }, Self::Policy, Self::Critic, { $b / $c },
+                $c, $l, $m, $n, $cap,
             >;
             fn instance() -> $crate::spec::Instance {
                 const { assert!($crate::spec::splits($b, $c), "the batch must split into equal chunks") };
                 $crate::spec::Instance {
                     sizes: <Self as $crate::spec::Spec>::SIZES,
                     trainer: $crate::trainer::Trainer::<
-                        $obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2, $q1, $q2, { $b / $c },
-                        $c, $l, $m, $n, $cap,
+                        $obs, $act, { $act * ($act + 1) / 2 }, Self::Policy, Self::Critic,
+                        { $b / $c }, $c, $l, $m, $n, $cap,
                     >::boxed,
-                    policy: $crate::policy::load::<$obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2>,
-                    serve: $crate::policy::serve::<$obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2>,
+                    policy: $crate::policy::load::<$obs, $act, { $act * ($act + 1) / 2 }, Self::Policy>,
+                    serve: $crate::policy::serve::<$obs, $act, { $act * ($act + 1) / 2 }, Self::Policy>,
                 }
             }
         }
     )*};
+}
+
+/// The policy type of a [`spec!`] line: the two-layer actor, or with a block count the
+/// residual one.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __spec_policy {
+    ($obs:literal, $act:literal, $a1:literal, $a2:literal, []) => {
+        $crate::reexport::Actor<$obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2>
+    };
+    ($obs:literal, $act:literal, $a1:literal, $a2:literal, [$d:literal]) => {
+        $crate::reexport::ResidualActor<$obs, $act, { $act * ($act + 1) / 2 }, $a1, $a2, $d>
+    };
+}
+
+/// The critic type of a [`spec!`] line: two-layer or residual, scalar or categorical.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __spec_critic {
+    ($obs:literal, $act:literal, $q1:literal, $q2:literal, [], []) => {
+        $crate::reexport::Critic<$obs, $act, $q1, $q2, 1>
+    };
+    ($obs:literal, $act:literal, $q1:literal, $q2:literal, [], [$k:literal]) => {
+        $crate::reexport::Critic<$obs, $act, $q1, $q2, $k>
+    };
+    ($obs:literal, $act:literal, $q1:literal, $q2:literal, [$d:literal], []) => {
+        $crate::reexport::ResidualCritic<$obs, $act, $q1, $q2, $d, 1>
+    };
+    ($obs:literal, $act:literal, $q1:literal, $q2:literal, [$d:literal], [$k:literal]) => {
+        $crate::reexport::ResidualCritic<$obs, $act, $q1, $q2, $d, $k>
+    };
 }

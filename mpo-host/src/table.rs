@@ -61,6 +61,24 @@ crate::spec! {
     /// Gymnasium's InvertedDoublePendulum-v5 (tasks/gymnasium/), 256-256.
     pub DoublePendulum256 = obs 9, act 1, actor [256, 256], critic [256, 256], batch 256 / 4,
         seq 8, samples 20 20, replay 1_000_000;
+    /// The fast tests' residual row: residual networks and a categorical critic of 21 atoms.
+    pub CartpoleTinySimba = obs 5, act 1, actor [32, 64] x 1, critic [32, 64] x 2, bins 21,
+        batch 64 / 2, seq 4, samples 10 10, replay 50_000;
+    /// walker-run, residual networks (docs/rows.md, "The residual rows").
+    pub WalkerResidual = obs 24, act 6, actor [64, 256] x 1, critic [128, 256] x 2,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// walker-run, residual networks and a categorical critic of 101 atoms.
+    pub WalkerSimba = obs 24, act 6, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// hopper-hop, residual networks and a categorical critic of 101 atoms.
+    pub HopperSimba = obs 15, act 4, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// cheetah-run, residual networks and a categorical critic of 101 atoms.
+    pub CheetahSimba = obs 17, act 6, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// acrobot-swingup, residual networks and a categorical critic of 101 atoms.
+    pub AcrobotSimba = obs 6, act 1, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
 }
 
 /// Every built-in instantiation.
@@ -82,6 +100,12 @@ pub fn instances() -> Vec<Instance> {
         Walker128::instance(),
         Cheetah128::instance(),
         DoublePendulum256::instance(),
+        CartpoleTinySimba::instance(),
+        WalkerResidual::instance(),
+        WalkerSimba::instance(),
+        HopperSimba::instance(),
+        CheetahSimba::instance(),
+        AcrobotSimba::instance(),
     ]
 }
 
@@ -253,7 +277,26 @@ static ROWS: LazyLock<Vec<Row>> = LazyLock::new(|| {
         of::<Walker128>("walker-walk", "small", 500_000, suite, SUITE_MPO),
         of::<Walker128>("walker-run", "small", 1_000_000, suite, SUITE_MPO),
         of::<Cheetah128>("cheetah-run", "small", 1_000_000, suite, SUITE_MPO),
+        of::<CartpoleTinySimba>(
+            "cartpole-balance",
+            "tiny-simba",
+            4_000,
+            TINY_SCHEDULE,
+            CARTPOLE_MPO,
+        ),
     ];
+    // The residual and categorical variants (docs/rows.md, "The residual rows"): the task's
+    // default settings with other networks, at the 500k-step budget: `simba` (residual
+    // networks and a categorical critic) for the four hardest tasks, `residual` (residual
+    // networks, the scalar critic) for walker-run as the ablation.
+    let k = 500_000;
+    rows.extend([
+        of::<WalkerResidual>("walker-run", "residual", k, suite, SUITE_MPO),
+        of::<WalkerSimba>("walker-run", "simba", k, suite, SUITE_MPO),
+        of::<HopperSimba>("hopper-hop", "simba", k, noisy, HOPPER_MPO),
+        of::<CheetahSimba>("cheetah-run", "simba", k, suite, SUITE_MPO),
+        of::<AcrobotSimba>("acrobot-swingup", "simba", k, noisy, SUITE_MPO),
+    ]);
     rows.shrink_to_fit();
     rows
 });

@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use serde::Serialize;
-use sim_bridge::TaskDef;
+use sim_bridge::{SimError, TaskDef};
 
 use crate::checkpoint::Verified;
 use crate::eval::mean_std;
@@ -330,6 +330,18 @@ impl<'r> Session<'r> {
     /// The error of a failed step, with where the last good checkpoint is.
     fn step_error(&self, e: StepError, t: &dyn Training) -> TrainError {
         match e {
+            // An external plant that died or stopped answering: say where the run can resume.
+            StepError::Sim(SimError::External(m)) => TrainError::Sim(SimError::External(format!(
+                "{m}. Training stopped at environment step {}; {}",
+                t.env_steps(),
+                match self.last_checkpoint {
+                    Some(s) => format!(
+                        "the last checkpoint (environment step {s}) is kept in {}",
+                        self.req.out.join(crate::checkpoint::SUBDIR).display()
+                    ),
+                    None => "no checkpoint had been written yet".into(),
+                }
+            ))),
             StepError::Sim(s) => TrainError::Sim(s),
             StepError::Link(l) => TrainError::Link(l),
             StepError::Device(d) => TrainError::Device(d),

@@ -13,9 +13,9 @@
 
 use std::path::Path;
 
-use mpo_core::agent::{Agent, AgentError, AgentSchedule};
+use mpo_core::agent::{AgentError, AgentOf, AgentSchedule};
 use mpo_core::learner::UpdateError;
-use mpo_core::params::Params;
+use mpo_core::network::{PolicyNet, PolicyTrain, ValueNet};
 use mpo_core::replay::Transition;
 use sim_bridge::{Environment, TaskDef};
 
@@ -35,8 +35,8 @@ use crate::training::{Training, TrainingInit};
 /// itself), so the streams differ.
 const STREAM_SALT: u64 = 0x6d70_6f2d_686f_7374;
 
-/// The act-and-learn state of a run with the row's types.
-pub struct Trainer<
+/// [`Trainer`] with the two-layer MLPs (actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`).
+pub type MlpTrainer<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
@@ -50,10 +50,37 @@ pub struct Trainer<
     const M: usize,
     const N: usize,
     const CAP: usize,
+> = Trainer<
+    OBS,
+    ACT,
+    TRI,
+    mpo_core::actor::Actor<OBS, ACT, TRI, AH1, AH2>,
+    mpo_core::critic::Critic<OBS, ACT, QH1, QH2>,
+    BC,
+    C,
+    L,
+    M,
+    N,
+    CAP,
+>;
+
+/// The act-and-learn state of a run with the row's types.
+pub struct Trainer<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    P: PolicyTrain<OBS, ACT, TRI> + Policy,
+    Q: ValueNet<OBS, ACT>,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+    const CAP: usize,
 > {
     /// The learner, its replay, the acting and sampling streams and the schedule: the part a
     /// device trainer runs too (`mpo_core::agent`).
-    pub agent: Box<Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>>,
+    pub agent: Box<AgentOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N, CAP>>,
     env: Box<dyn Environment>,
     /// Episodes completed.
     pub episodes: u64,
@@ -83,17 +110,15 @@ impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI> + Policy,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
     const M: usize,
     const N: usize,
     const CAP: usize,
-> Trainer<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>
+> Trainer<OBS, ACT, TRI, P, Q, BC, C, L, M, N, CAP>
 {
     /// A fresh run of the settings' task (networks initialised from the seed, empty replay),
     /// or the state of `resume`. `threads` runs the learner's work (any count gives the same
@@ -122,6 +147,8 @@ impl<
     }
 
     /// [`Trainer::new`] for a task already loaded.
+    // Long for its list of parts (environments, agent, random streams, buffers, resume),
+    // each built once in the order the checkpoint restores them.
     pub fn with_task(init: TrainingInit<'_>) -> Result<Self, TrainError> {
         let TrainingInit {
             settings,
@@ -138,7 +165,7 @@ impl<
                 spec.act_dim
             )));
         }
-        let mut agent: Box<Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>> =
+        let mut agent: Box<AgentOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N, CAP>> =
             bytemuck::zeroed_box();
         agent
             .init(
@@ -148,7 +175,7 @@ impl<
                 agent_schedule(settings),
             )
             .map_err(|e| crate::settings::SettingsError::Invalid(format!("mpo: {e}")))?;
-        let mut env: Box<dyn Environment> = Box::new(task.make(settings.seed)?);
+        let mut env: Box<dyn Environment> = crate::plant::make(task, settings.seed)?;
         let (mut episodes, mut stats) = (0, StatsAccumulator::default());
         let mut obs64 = [0f64; OBS];
         if let Some(v) = resume {
@@ -187,7 +214,7 @@ impl<
     /// The agent's state from a checkpoint: networks, optimiser, replay, the three random
     /// streams and the counters. Returns the episodes completed and the pending statistics.
     fn restore(
-        agent: &mut Agent<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>,
+        agent: &mut AgentOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N, CAP>,
         v: &Verified,
     ) -> Result<(u64, StatsAccumulator), TrainError> {
         v.restore(&mut agent.learner, &mut agent.replay)?;
@@ -546,30 +573,31 @@ impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI> + Policy,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
     const M: usize,
     const N: usize,
     const CAP: usize,
-> Training for Trainer<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N, CAP>
+> Training for Trainer<OBS, ACT, TRI, P, Q, BC, C, L, M, N, CAP>
 {
     fn sizes(&self) -> Sizes {
         Sizes {
             obs: OBS,
             act: ACT,
-            actor: [AH1, AH2],
-            critic: [QH1, QH2],
+            actor: P::HIDDEN,
+            critic: Q::HIDDEN,
             batch: BC * C,
             chunks: C,
             seq: L,
             m: M,
             n: N,
             replay_capacity: CAP,
+            actor_blocks: <P as PolicyNet<OBS, ACT, TRI>>::BLOCKS,
+            critic_blocks: Q::BLOCKS,
+            bins: Q::BINS,
         }
     }
     fn env_steps(&self) -> u64 {

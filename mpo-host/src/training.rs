@@ -84,8 +84,10 @@ pub enum TrainError {
     /// Reading or writing a checkpoint.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
-    /// The simulator (missing MuJoCo, a physics error).
-    #[error("simulator: {0}")]
+    /// The simulator (missing MuJoCo, a physics error) or an external plant. (Transparent: the
+    /// simulator's messages say what failed, and a prefix here printed them twice, once as
+    /// this error and once as its source.)
+    #[error(transparent)]
     Sim(#[from] SimError),
     /// A learner update failed; its changes were undone and no checkpoint was written for it.
     #[error(

@@ -9,7 +9,7 @@ use mpo_core::replay::Transition;
 use mpo_host::commands::defaults;
 use mpo_host::settings::PolicyEvaluation;
 use mpo_host::table;
-use mpo_host::trainer::Trainer;
+use mpo_host::trainer::MlpTrainer as Trainer;
 
 type Tiny = Trainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
 

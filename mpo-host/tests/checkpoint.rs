@@ -6,7 +6,7 @@ mod common;
 use common::*;
 
 use mpo_host::checkpoint;
-use mpo_host::trainer::Trainer;
+use mpo_host::trainer::MlpTrainer as Trainer;
 use safetensors::SafeTensors;
 
 /// The `cartpole-balance`/`tiny` row's types.

@@ -15,6 +15,7 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
 use mpo_frames::{Event, Fault, Receiver, encode, kind};
+use mpo_integration::cortex_m;
 
 fn target_dir() -> PathBuf {
     mpo_integration::workspace_root().join("target/freestanding")
@@ -38,10 +39,43 @@ fn trainer() -> PathBuf {
     target_dir().join("x86_64-unknown-linux-gnu/release/mpo-trainer")
 }
 
-/// `mpo train --net mcu` for `steps` steps into `dir`, on the device when `device` is set.
-fn mcu(dir: &std::path::Path, steps: u64, device: bool, env: &[(&str, &str)]) -> serde_json::Value {
+/// The device trainer built for the Cortex-M4F (thumbv7em-none-eabihf), once per test binary.
+fn trainer_cortex_m() -> PathBuf {
+    static BUILT: std::sync::Once = std::sync::Once::new();
+    let target = mpo_integration::workspace_root().join("target/cortex-m");
+    BUILT.call_once(|| {
+        let out = cortex_m::build("trainer", "", &[], &target);
+        assert!(
+            out.status.success(),
+            "device trainer build for the Cortex-M4F failed:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    });
+    cortex_m::elf(&target, "mpo-trainer")
+}
+
+/// Where `mpo train --net mcu` runs the learner.
+#[derive(Clone, Copy)]
+enum On<'a> {
+    /// In-process.
+    Host,
+    /// The x86-64 device trainer (a child process).
+    Device,
+    /// This device command line (QEMU).
+    Command(&'a str),
+}
+
+/// `mpo train --net mcu` for `steps` steps into `dir`, in-process or on a device, with extra
+/// arguments `more`.
+fn mcu(
+    dir: &std::path::Path,
+    steps: u64,
+    on: On,
+    env: &[(&str, &str)],
+    more: &[&str],
+) -> serde_json::Value {
     let steps = steps.to_string();
-    let bin = trainer();
+    let bin = trainer().display().to_string();
     let mut args = vec![
         "train",
         "--net",
@@ -54,14 +88,12 @@ fn mcu(dir: &std::path::Path, steps: u64, device: bool, env: &[(&str, &str)]) ->
         "--out",
         dir.to_str().unwrap(),
     ];
-    if device {
-        args.extend_from_slice(&[
-            "--device",
-            bin.to_str().unwrap(),
-            "--device-timeout",
-            "0.05",
-        ]);
+    match on {
+        On::Host => {}
+        On::Device => args.extend_from_slice(&["--device", &bin, "--device-timeout", "0.05"]),
+        On::Command(cmd) => args.extend_from_slice(&["--device", cmd]),
     }
+    args.extend_from_slice(more);
     let out = Command::new(env!("CARGO_BIN_EXE_mpo"))
         .args(&args)
         .envs(env.iter().copied())
@@ -73,8 +105,8 @@ fn mcu(dir: &std::path::Path, steps: u64, device: bool, env: &[(&str, &str)]) ->
 #[test]
 fn device_run_equals_the_in_process_run_bit_for_bit() {
     let d = scratch("device-same-bits");
-    let here = mcu(&d.join("here"), 4000, false, &[]);
-    let there = mcu(&d.join("device"), 4000, true, &[]);
+    let here = mcu(&d.join("here"), 4000, On::Host, &[], &[]);
+    let there = mcu(&d.join("device"), 4000, On::Device, &[], &[]);
     assert_eq!(there["params_sha256"], here["params_sha256"]);
     assert_eq!(there["updates"], here["updates"]);
     assert_eq!(there["eval_return_mean"], here["eval_return_mean"]);
@@ -102,21 +134,165 @@ fn device_run_equals_the_in_process_run_bit_for_bit() {
     assert_eq!(rows(d.join("here")), rows(d.join("device")));
 }
 
+/// The same run with the trainer on a Cortex-M4F: built for thumbv7em-none-eabihf (hardware
+/// FPU) and run on QEMU's `mps2-an386` board, the frames over its UART. Kept short for the
+/// fast test set (1000 steps, warm-up 500: 250 updates; one evaluation episode).
+#[test]
+fn device_run_on_the_cortex_m4f_in_qemu_equals_the_in_process_run() {
+    let d = scratch("device-cortex-m");
+    let cmd = cortex_m::command(&trainer_cortex_m(), None).join(" ");
+    let short = [
+        "--set",
+        "schedule.warmup_steps=500",
+        "--set",
+        "schedule.eval_episodes=1",
+    ];
+    let here = mcu(&d.join("here"), 1000, On::Host, &[], &short);
+    let there = mcu(&d.join("qemu"), 1000, On::Command(&cmd), &[], &short);
+    assert_eq!(
+        there["updates"], 251,
+        "updates at steps 500, 502, ..., 1000"
+    );
+    assert_eq!(there["params_sha256"], here["params_sha256"]);
+    assert_eq!(there["eval_return_mean"], here["eval_return_mean"]);
+    assert_eq!(there["device"]["retries"], 0, "{}", there["device"]);
+}
+
+/// A longer run with the trainer on the Cortex-M4F (10,000 steps: 4,501 updates, three
+/// evaluations of ten episodes): every evaluation and the parameters equal the in-process
+/// run's. About 4 minutes (QEMU emulates about 25 updates a second here).
+#[test]
+#[ignore = "long: scripts/test --long"]
+fn longer_device_run_on_the_cortex_m4f_in_qemu_equals_the_in_process_run() {
+    let d = scratch("device-cortex-m-long");
+    let cmd = cortex_m::command(&trainer_cortex_m(), None).join(" ");
+    let here = mcu(&d.join("here"), 10_000, On::Host, &[], &[]);
+    let there = mcu(&d.join("qemu"), 10_000, On::Command(&cmd), &[], &[]);
+    assert_eq!(there["params_sha256"], here["params_sha256"]);
+    assert_eq!(there["updates"], here["updates"]);
+    let evals = |p: PathBuf| -> Vec<(u64, f64, f64)> {
+        std::fs::read_to_string(p.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                (
+                    v["env_steps"].as_u64().unwrap(),
+                    v["eval_return_mean"].as_f64().unwrap(),
+                    v["eval_return_std"].as_f64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    let (a, b) = (evals(d.join("here")), evals(d.join("qemu")));
+    assert_eq!(a.len(), 3, "evaluations at 0, 5000 and 10000 steps");
+    assert_eq!(a, b);
+}
+
+/// The frames of `HELLO`, `START` (the core's report configuration, seed 0, no warm-up) and
+/// `EVAL` of a finite observation so large (every value -3.4e38) that this policy's mean comes
+/// out NaN (the first layer overflows to infinity, and infinities of both signs meet later).
+fn nan_request() -> Vec<u8> {
+    let mut input = Vec::new();
+    let mut frame = |k: u8, seq: u8, payload: &[u8]| {
+        let mut out = vec![0u8; 512];
+        let n = encode(k, seq, payload, &mut out);
+        input.extend_from_slice(&out[..n]);
+    };
+    frame(kind::HELLO, 1, &[]);
+    let mut start = vec![0u8; mpo_frames::START_LEN];
+    start[8..16].copy_from_slice(&1u64.to_le_bytes()); // update interval
+    start[16..24].copy_from_slice(&1u64.to_le_bytes()); // updates per interval
+    start[24..28].copy_from_slice(&1u32.to_le_bytes()); // n-step
+    for (i, w) in mpo_core::config::MpoConfig::REPORT
+        .to_words()
+        .iter()
+        .enumerate()
+    {
+        start[32 + 4 * i..36 + 4 * i].copy_from_slice(&w.to_le_bytes());
+    }
+    frame(kind::START, 2, &start);
+    let mut obs = [0u8; 20];
+    mpo_frames::put_f32s(&[-f32::from_bits(0x7f7f_7f7f); 5], &mut obs);
+    frame(kind::EVAL, 3, &obs);
+    input
+}
+
+/// The replies' frames: (kind, payload).
+fn frames_in(bytes: &[u8]) -> Vec<(u8, Vec<u8>)> {
+    let mut rx = Box::new(Receiver::<20_000>::new(5, 1, 1330 + 1377));
+    bytes
+        .iter()
+        .filter_map(|&b| match rx.push(b) {
+            Event::Frame(k, _) => Some((k, rx.payload().to_vec())),
+            _ => None,
+        })
+        .collect()
+}
+
+/// A NaN leaves the x86-64 and the Cortex-M4F trainers as the same bytes. The NaN an invalid
+/// operation makes has its sign bit set on x86 and clear on Arm; the frames carry every NaN as
+/// the canonical one (`mpo_frames::f32_bytes`), so the two devices' replies are equal.
+#[test]
+fn a_nan_action_leaves_x86_and_the_cortex_m4f_as_the_same_bytes() {
+    let input = nan_request();
+    let mut child = Command::new(trainer())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(&input).unwrap();
+    let x86 = child.wait_with_output().unwrap().stdout;
+    let frames = frames_in(&x86);
+    let kinds: Vec<u8> = frames.iter().map(|f| f.0).collect();
+    assert_eq!(kinds, [kind::INFO, kind::ACK, kind::ACTION]);
+    let action = mpo_frames::u32_at(&frames[2].1, 0);
+    assert_eq!(
+        action,
+        mpo_frames::CANONICAL_NAN,
+        "the mean action for a huge observation: {:#x}",
+        action
+    );
+    // What the x86 trainer computed before encoding: the same learner here (seed 0, the same
+    // configuration) gives a NaN with the sign bit set, which is not what was sent.
+    let mut learner: Box<mpo_core::learner::Learner<5, 1, 1, 32, 32, 32, 32, 32, 1, 1, 8, 8>> =
+        bytemuck::zeroed_box();
+    learner
+        .init(mpo_core::config::MpoConfig::REPORT, 0)
+        .unwrap();
+    let mut raw = [0f32; 1];
+    learner.mean_action(&[-f32::from_bits(0x7f7f_7f7f); 5], &mut raw);
+    assert!(
+        raw[0].is_nan() && raw[0].is_sign_negative(),
+        "x86's own NaN: {:#x}",
+        raw[0].to_bits()
+    );
+    let cmd = cortex_m::command(&trainer_cortex_m(), None);
+    let arm = cortex_m::exchange_until(
+        &cmd,
+        input,
+        |got| got.iter().filter(|&&b| b == mpo_frames::DELIMITER).count() >= 3,
+        std::time::Duration::from_secs(60),
+    );
+    assert_eq!(frames_in(&arm), frames, "the Cortex-M4F's replies differ");
+}
+
 #[test]
 #[ignore = "long: scripts/test --long"]
 fn damaged_and_truncated_frames_both_ways_are_counted_and_recovered_from() {
     let d = scratch("device-damage");
-    let clean = mcu(&d.join("clean"), 2000, false, &[]);
+    let clean = mcu(&d.join("clean"), 2000, On::Host, &[], &[]);
     // Every 7th frame to the device damaged (a flipped byte, or only its first half, in
     // turn); every 5th frame from it damaged (a flipped or a dropped byte, in turn).
     let damaged = mcu(
         &d.join("damaged"),
         2000,
-        true,
+        On::Device,
         &[
             ("MPO_TEST_DAMAGE_EVERY", "7"),
             ("MPO_TEST_DAMAGE_REPLIES_EVERY", "5"),
         ],
+        &[],
     );
     assert_eq!(damaged["params_sha256"], clean["params_sha256"]);
     let dev = &damaged["device"];

@@ -5,9 +5,6 @@
 mod common;
 use common::*;
 
-use std::io::Write;
-use std::process::{Command, Stdio};
-
 use mpo_core::rng::Rng;
 use mpo_host::checkpoint;
 
@@ -53,19 +50,9 @@ fn exported_checkpoint_runs_on_the_firmware_bit_for_bit() {
             o
         })
         .collect();
-    let input: Vec<u8> = obs.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
-    let mut child = Command::new(&bin)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdin = child.stdin.take().unwrap();
-    let writer = std::thread::spawn(move || stdin.write_all(&input));
-    let result = child.wait_with_output().unwrap();
-    writer.join().unwrap().unwrap();
-    assert!(result.status.success());
-    assert_eq!(result.stdout.len(), obs.len() * 4);
-    for (k, (o, b)) in obs.iter().zip(result.stdout.chunks_exact(4)).enumerate() {
+    let stdout = mpo_integration::firmware::run(&bin, &obs);
+    assert_eq!(stdout.len(), obs.len() * 4);
+    for (k, (o, b)) in obs.iter().zip(stdout.chunks_exact(4)).enumerate() {
         let mut want = [0f32; 1];
         learner.mean_action(o, &mut want);
         let got = f32::from_le_bytes(b.try_into().unwrap());

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use mpo_host::commands::defaults;
 use mpo_host::table;
-use mpo_host::trainer::Trainer;
+use mpo_host::trainer::MlpTrainer as Trainer;
 
 struct Counting;
 static ALLOCS: AtomicU64 = AtomicU64::new(0);

@@ -9,6 +9,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use core::time::Duration;
 
 use mpo_core::actor::Actor;
+use mpo_core::network::PolicyNet;
 use mpo_core::params::Params;
 use mpo_core::rng::Rng;
 
@@ -200,10 +201,24 @@ pub fn serve<
     opts: &ControllerOptions,
     ready: impl FnOnce(),
 ) -> Result<ControllerStats, LinkError> {
+    serve_policy::<OBS, ACT, TRI, Actor<OBS, ACT, TRI, H1, H2>>(opts, ready)
+}
+
+/// [`serve`] with a policy network of any form (`mpo_core::network::PolicyNet`: the two-layer
+/// actor or the residual one).
+// The controller's whole loop (wait, read, act, reply, take new parameters) in one place, so
+// that the hot path between two requests can be read at once and checked for allocations.
+pub fn serve_policy<const OBS: usize, const ACT: usize, const TRI: usize, P>(
+    opts: &ControllerOptions,
+    ready: impl FnOnce(),
+) -> Result<ControllerStats, LinkError>
+where
+    P: PolicyNet<OBS, ACT, TRI>,
+{
     let ports = ControllerPorts::open(&opts.run)?;
-    let mut policy: Box<Actor<OBS, ACT, TRI, H1, H2>> = bytemuck::zeroed_box();
+    let mut policy: Box<P> = bytemuck::zeroed_box();
     policy.init(&mut Rng::seed_from_u64(opts.seed), opts.init_std, 1e-4);
-    let mut asm = Assembler::<Actor<OBS, ACT, TRI, H1, H2>>::new(bytemuck::zeroed_box());
+    let mut asm = Assembler::<P>::new(bytemuck::zeroed_box());
     let mut applied = 0u64;
     let mut stats = ControllerStats::default();
     let mut reply: ActMsg = bytemuck::Zeroable::zeroed();
@@ -246,7 +261,7 @@ pub fn serve<
             continue;
         }
         reply.t_recv_ns = monotonic_ns();
-        respond(&policy, &latest, applied, &mut stats, &mut reply);
+        respond_with(&*policy, &latest, applied, &mut stats, &mut reply);
         reply.t_send_ns = monotonic_ns();
         if ports.act.send_copy(reply).is_ok() {
             stats.answered += 1;
@@ -278,6 +293,19 @@ pub fn respond<
     stats: &mut ControllerStats,
     reply: &mut ActMsg,
 ) {
+    respond_with::<OBS, ACT, TRI, _>(policy, request, applied, stats, reply);
+}
+
+/// [`respond`] with a policy network of any form.
+pub fn respond_with<const OBS: usize, const ACT: usize, const TRI: usize, P>(
+    policy: &P,
+    request: &ObsMsg,
+    applied: u64,
+    stats: &mut ControllerStats,
+    reply: &mut ActMsg,
+) where
+    P: PolicyNet<OBS, ACT, TRI>,
+{
     reply.seq = request.seq;
     reply.generation = applied;
     reply.len = ACT as u32;

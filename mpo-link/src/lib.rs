@@ -5,6 +5,8 @@
 //! - [`service`]: run identity (unique service names and file prefix), the ports of each side;
 //! - [`plant`]: the host endpoint ([`plant::Plant`]): request an action with a deadline, push
 //!   parameters;
+//! - [`external`]: a plant in another process (a Gymnasium environment, a robot's software):
+//!   the protocol and the learner's end ([`external::ExternalPlant`]);
 //! - [`controller`]: the controller loop behind the `mpo-controller` binary;
 //! - [`realtime`]: `SCHED_FIFO` and timer slack for paced loops.
 //!
@@ -12,6 +14,7 @@
 //! send) or by busy-polling ([`service::WaitMode`]).
 
 pub mod controller;
+pub mod external;
 pub mod fleet;
 pub mod messages;
 pub mod plant;

@@ -69,6 +69,9 @@ pub struct PlantStats {
     pub rejections: Rejections,
     /// Parameter generations pushed.
     pub pushes: u64,
+    /// Replies computed with parameters older than the newest pushed (the controller read the
+    /// request before it had taken the push): never acted on; the request is sent again.
+    pub stale_policy: u64,
 }
 
 /// Sizes and timing of one plant.
@@ -225,7 +228,8 @@ impl Plant {
         r
     }
 
-    fn send_and_wait(&mut self, deadline_ns: u64) -> Result<Action, Miss> {
+    /// Sends the request (a new sequence number); `false` if it could not be sent.
+    fn send_request(&mut self) -> bool {
         // iceoryx2 hands a new subscriber the parameter history when the publisher notices it,
         // which happens only inside a publisher call: look before every request, so a restarted
         // controller has the newest policy before it sees the observation (a cheap check of a
@@ -234,22 +238,39 @@ impl Plant {
         self.seq += 1;
         self.req.seq = self.seq;
         self.req.t_send_ns = monotonic_ns();
-        self.stats.requests += 1;
         if self.ports().obs.send_copy(self.req).is_err() {
-            return self.miss(Miss::Send);
+            return false;
         }
         if self.cfg.wait == WaitMode::Event {
             // Nobody listening (controller dead) is not an error here: the deadline reports it.
             let _ = self.ports().notify.notify();
         }
+        true
+    }
+
+    fn send_and_wait(&mut self, deadline_ns: u64) -> Result<Action, Miss> {
+        self.stats.requests += 1;
+        if !self.send_request() {
+            return self.miss(Miss::Send);
+        }
         let spin_until = self.req.t_send_ns + self.cfg.spin.as_nanos() as u64;
         loop {
+            let mut stale = false;
             while let Ok(Some(sample)) = self.ports().act.receive() {
                 let m: &ActMsg = &sample;
                 match m.validate(self.seq, self.cfg.act_len) {
                     Ok(_) if m.flags & ACT_REJECTED != 0 => {
                         self.stats.rejected_by_controller += 1;
                         return self.miss(Miss::Rejected);
+                    }
+                    // A busy-polling controller may read the request between two looks at the
+                    // parameter port, before the newest push has arrived: its answer is the old
+                    // policy's. Never acted on as if fresh: asked again (the controller has the
+                    // push by its next look), within the same deadline.
+                    Ok(_) if m.generation < self.generation => {
+                        self.stats.stale_policy += 1;
+                        stale = true;
+                        break;
                     }
                     Ok(a) => {
                         let mut action = [0f32; MAX_ACT];
@@ -265,6 +286,9 @@ impl Plant {
                     }
                     Err(e) => self.stats.rejections.count(e),
                 }
+            }
+            if stale && !self.send_request() {
+                return self.miss(Miss::Send);
             }
             let left = remaining(deadline_ns);
             if left.is_zero() {

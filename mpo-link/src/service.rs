@@ -170,7 +170,10 @@ impl Default for RunId {
 /// round trip p50 28.3-29.7 us either way, A/B on this machine): `ppoll` on the listener's
 /// descriptor times out on a high-resolution timer and allocates nothing. Coalesced wake-ups
 /// are fine, as the subscribers are drained after each.
-pub fn wait_for_event(listener: &Listener<ipc::Service>, timeout: Duration) {
+pub fn wait_for_event<S: iceoryx2::service::Service>(listener: &Listener<S>, timeout: Duration)
+where
+    Listener<S>: FileDescriptorBased,
+{
     // SAFETY: the descriptor is only polled while `listener` owns it.
     let fd = unsafe { listener.file_descriptor().native_handle() };
     let mut pfd = libc::pollfd {

@@ -71,6 +71,11 @@ pub enum SimError {
     )]
     PhysicsError { warnings: String },
 
+    /// An external plant that cannot be reached, dies, stops answering or answers wrongly
+    /// (one line naming the task file and the cause).
+    #[error("{0}")]
+    External(String),
+
     #[error("the episode is over (it lasts {steps} steps); call reset() before stepping again")]
     EpisodeOver { steps: usize },
 }

@@ -43,7 +43,7 @@ pub mod taskfile;
 
 pub use env::SuiteEnv;
 pub use error::{SETUP_COMMAND, SUITE_DIR_VAR, SimError};
-pub use taskfile::{Origin, TaskDef};
+pub use taskfile::{ExternalDef, Origin, TaskDef};
 
 /// The fixed shape of a task.
 #[derive(Clone, Debug, PartialEq)]

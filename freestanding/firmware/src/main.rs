@@ -1,10 +1,11 @@
 //! Inference-only firmware: observations in, mean actions out, nothing else.
 //!
-//! Each record on stdin is `OBS` little-endian f32; for each, `ACT` little-endian f32 go to
-//! stdout. A record with a non-finite value gets the safe action (all zeros) instead of a
-//! network output. Exit 0 at the end of input, 2 on a truncated record or an I/O error. The
-//! record format and the loop are `mpo-records` (`freestanding/records`, also fuzzed); here
-//! only the system calls and the policy.
+//! Each record in (stdin on Linux, the UART on the Cortex-M4F board) is `OBS` little-endian
+//! f32; for each, `ACT` little-endian f32 go out. A record with a non-finite value gets the
+//! safe action (all zeros) instead of a network output. Exit 0 at the end of input (a UART has
+//! none), 2 on a truncated record or an I/O error. The record format and the loop are
+//! `mpo-records` (`freestanding/records`, also fuzzed); here only the byte stream (`mpo-rt`)
+//! and the policy, bracketed by the measurement marks for the instruction counter.
 #![no_std]
 #![no_main]
 
@@ -32,6 +33,10 @@ fn main() -> i32 {
         &mut outbuf,
         |b| mpo_rt::read_exact(0, b),
         |b| mpo_rt::write_all(1, b),
-        |o, a| ACTOR.mean_action(o, a),
+        |o, a| {
+            mpo_rt::mark_begin();
+            ACTOR.mean_action(o, a);
+            mpo_rt::mark_end();
+        },
     )
 }

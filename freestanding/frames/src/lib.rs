@@ -103,44 +103,26 @@ impl Fault {
     }
 }
 
-/// CRC-32 (IEEE 802.3, reflected, as zlib's `crc32`): a running value.
-#[derive(Clone, Copy, Debug)]
-pub struct Crc(u32);
+/// The frames' CRC-32: IEEE 802.3, reflected, as zlib's `crc32` (`CRC_32_ISO_HDLC` of the
+/// `crc` crate, whose table is built at compile time: no_std, no allocation).
+static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
-const CRC_TABLE: [u32; 256] = {
-    let mut t = [0u32; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut c = i as u32;
-        let mut k = 0;
-        while k < 8 {
-            c = if c & 1 != 0 {
-                0xEDB8_8320 ^ (c >> 1)
-            } else {
-                c >> 1
-            };
-            k += 1;
-        }
-        t[i] = c;
-        i += 1;
-    }
-    t
-};
+/// CRC-32 of the frames: a running value.
+#[derive(Clone)]
+pub struct Crc(crc::Digest<'static, u32>);
 
 impl Crc {
     /// A fresh checksum.
     pub const fn new() -> Self {
-        Self(0xFFFF_FFFF)
+        Self(CRC32.digest())
     }
     /// Adds bytes.
     pub fn update(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = CRC_TABLE[((self.0 ^ b as u32) & 0xFF) as usize] ^ (self.0 >> 8);
-        }
+        self.0.update(bytes);
     }
     /// The checksum of what was added.
     pub fn finish(&self) -> u32 {
-        !self.0
+        self.0.clone().finalize()
     }
 }
 
@@ -213,7 +195,7 @@ pub const START_LEN: usize = 8 + 8 + 8 + 4 + 4 + CONFIG_LEN;
 /// the trainer assert at compile time that the two counts agree.
 pub const CONFIG_LEN: usize = 4 * CONFIG_FIELDS;
 /// Words of the configuration.
-pub const CONFIG_FIELDS: usize = 29;
+pub const CONFIG_FIELDS: usize = 33;
 
 /// Reads a little-endian u32 at `at`.
 pub fn u32_at(b: &[u8], at: usize) -> u32 {
@@ -232,10 +214,27 @@ pub fn f32_at(b: &[u8], at: usize) -> f32 {
     f32::from_bits(u32_at(b, at))
 }
 
-/// Writes `values` as little-endian f32 into `out` (4 bytes each).
+/// The one NaN a frame carries: quiet, sign clear, no payload (`0x7fc0_0000`).
+pub const CANONICAL_NAN: u32 = 0x7fc0_0000;
+
+/// `x` as the 4 little-endian bytes a frame carries, every NaN as [`CANONICAL_NAN`]. The NaN an
+/// invalid operation makes differs between instruction sets (x86's has its sign bit set, Arm's
+/// does not; propagated NaNs keep payloads that depend on operand order), so without this a
+/// device on another CPU would send other bytes for the same computation. Every float either
+/// side sends goes through here.
+pub fn f32_bytes(x: f32) -> [u8; 4] {
+    if x.is_nan() {
+        CANONICAL_NAN.to_le_bytes()
+    } else {
+        x.to_le_bytes()
+    }
+}
+
+/// Writes `values` as little-endian f32 into `out` (4 bytes each; NaNs canonical:
+/// [`f32_bytes`]).
 pub fn put_f32s(values: &[f32], out: &mut [u8]) {
     for (o, v) in out.chunks_exact_mut(4).zip(values) {
-        o.copy_from_slice(&v.to_le_bytes());
+        o.copy_from_slice(&f32_bytes(*v));
     }
 }
 
@@ -247,6 +246,12 @@ pub fn get_f32s(b: &[u8], values: &mut [f32]) {
 }
 
 /// COBS-encodes bytes into `write` in blocks of at most 254 (the only buffering it needs).
+///
+/// Hand-written rather than a crate's (`cobs`, `corncobs`), on purpose: those encode a whole
+/// input slice into an output buffer, and the device trainer's parameter reply (tens of KB)
+/// would then need a second, encoded copy in a RAM budget of 256 KiB; this encoder streams the
+/// frame to the UART through one 254-byte block. The decoder below works in place for the same
+/// reason. Both are tested against the format's rules here and fuzzed (fuzz/, `frames`).
 struct Cobs<'a, E> {
     block: [u8; 254],
     n: usize,
@@ -467,6 +472,32 @@ mod tests {
     use super::*;
     use std::vec;
     use std::vec::Vec;
+
+    #[test]
+    fn every_nan_is_sent_as_the_canonical_one() {
+        let made = core::hint::black_box(f32::INFINITY) * core::hint::black_box(0.0f32);
+        #[cfg(target_arch = "x86_64")]
+        assert_eq!(
+            made.to_bits(),
+            0xffc0_0000,
+            "x86's invalid-operation NaN is negative"
+        );
+        for x in [
+            made,
+            -made,
+            f32::NAN,
+            f32::from_bits(0x7f80_0001),
+            f32::from_bits(0xffff_ffff),
+        ] {
+            assert!(x.is_nan());
+            assert_eq!(f32_bytes(x), CANONICAL_NAN.to_le_bytes());
+        }
+        let mut out = [0u8; 12];
+        put_f32s(&[1.5, made, -0.0], &mut out);
+        assert_eq!(f32_at(&out, 0), 1.5);
+        assert_eq!(u32_at(&out, 4), CANONICAL_NAN);
+        assert_eq!(u32_at(&out, 8), 0x8000_0000, "only NaNs change: -0 stays");
+    }
 
     #[test]
     fn crc_matches_the_standard_check_value() {

@@ -1,68 +1,53 @@
-//! Runtime for freestanding (`#![no_std] #![no_main]`) x86_64 Linux binaries.
+//! Runtime for the freestanding (`#![no_std] #![no_main]`) binaries, one API on every platform.
 //!
-//! A binary calls [`entry!`] with its main function (`fn() -> i32`); the macro defines
-//! `_start`, which aligns the stack, calls it and exits with its return value. I/O goes
-//! through [`read`] and [`write`] (raw system calls).
+//! A binary calls [`entry!`] with its main function (`fn() -> i32`); the platform's start-up
+//! code calls it and exits with its return value. Bytes go in through [`read`] (descriptor 0)
+//! and out through [`write`] (1: the data stream, 2: diagnostics). The board layers:
+//!
+//! - `linux` (x86_64): `_start`, raw system calls, the C memory functions; descriptors are the
+//!   process's. The tests' stand-in for a device.
+//! - `mps2` (Arm, thumbv7em-none-eabihf): the vector table, a reset handler that enables the
+//!   FPU and paints the stack, the board's first UART as the data stream (both directions; a
+//!   UART has no end of input, so [`read`] never returns 0), semihosting for diagnostics and the
+//!   exit code.
+//!
+//! What does not depend on the platform is here: [`read_exact`], [`write_all`],
+//! [`ZeroedStatic`], the panic handler, and the measurement marks ([`mark_begin`],
+//! [`mark_end`]).
 #![no_std]
 
-/// Defines `_start` for a binary: `mpo_rt::entry!(main);` with `fn main() -> i32`.
+#[cfg(target_arch = "x86_64")]
+mod linux;
+#[cfg(target_arch = "x86_64")]
+pub use linux::{exit, read, write};
+
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+mod mps2;
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+pub use mps2::{exit, read, write};
+
+/// Defines the binary's main function for the platform's start-up code:
+/// `mpo_rt::entry!(main);` with `fn main() -> i32` (the exit code).
 #[macro_export]
 macro_rules! entry {
     ($main:path) => {
-        // The kernel enters `_start` with the stack 16-byte aligned at argc; the ABI wants it
-        // 16-byte aligned before a call: clear the frame pointer, realign, call.
-        core::arch::global_asm!(
-            ".globl _start",
-            "_start:",
-            "xor ebp, ebp",
-            "and rsp, -16",
-            "call {entry}",
-            "ud2",
-            entry = sym __mpo_rt_entry,
-        );
-        extern "C" fn __mpo_rt_entry() -> ! {
-            let code: i32 = $main();
-            $crate::exit(code)
+        #[unsafe(no_mangle)]
+        extern "Rust" fn __mpo_rt_main() -> i32 {
+            $main()
         }
     };
 }
 
-/// `write(2)`: bytes written, or a negative errno.
-pub fn write(fd: u32, bytes: &[u8]) -> isize {
-    let ret: isize;
-    // SAFETY: write(2) with a valid pointer and length; rcx and r11 are clobbered by syscall.
-    unsafe {
-        core::arch::asm!(
-            "syscall",
-            inlateout("rax") 1isize => ret,
-            in("rdi") fd as usize,
-            in("rsi") bytes.as_ptr(),
-            in("rdx") bytes.len(),
-            lateout("rcx") _,
-            lateout("r11") _,
-            options(nostack),
-        );
-    }
-    ret
+unsafe extern "Rust" {
+    /// The binary's main function, defined by [`entry!`].
+    fn __mpo_rt_main() -> i32;
 }
 
-/// `read(2)`: bytes read (0 at end of input), or a negative errno.
-pub fn read(fd: u32, buf: &mut [u8]) -> isize {
-    let ret: isize;
-    // SAFETY: read(2) into a valid, writable buffer of the given length.
-    unsafe {
-        core::arch::asm!(
-            "syscall",
-            inlateout("rax") 0isize => ret,
-            in("rdi") fd as usize,
-            in("rsi") buf.as_mut_ptr(),
-            in("rdx") buf.len(),
-            lateout("rcx") _,
-            lateout("r11") _,
-            options(nostack),
-        );
-    }
-    ret
+/// Runs the binary's main function (the board layers' start-up code calls this).
+fn run_main() -> i32 {
+    // SAFETY: defined by `entry!` in the binary with exactly this signature; a binary without
+    // it fails to link.
+    unsafe { __mpo_rt_main() }
 }
 
 /// Writes all of `bytes` (retrying short writes); false on error.
@@ -93,6 +78,31 @@ pub fn read_exact(fd: u32, buf: &mut [u8]) -> Result<bool, ()> {
     }
     Ok(true)
 }
+
+/// Marks the start of a measured span of work (an inference, an environment step). It does
+/// nothing, at the cost of a call and a return: the instruction counter run under QEMU
+/// (`scripts/qemu-count`) records its instruction count whenever this function's first
+/// instruction executes, and [`mark_end`]'s likewise, so the difference is the span's exact
+/// instruction count.
+#[inline(never)]
+#[unsafe(no_mangle)]
+pub extern "C" fn mpo_mark_begin() {
+    // A block the optimiser must keep (it may have side effects), so the call stays; one `nop`
+    // here and two in `mpo_mark_end`, so the linker cannot fold the two into one address.
+    // SAFETY: no-operations.
+    unsafe { core::arch::asm!("nop", options(nomem, nostack, preserves_flags)) }
+}
+
+/// Marks the end of a measured span (see [`mpo_mark_begin`]).
+#[inline(never)]
+#[unsafe(no_mangle)]
+pub extern "C" fn mpo_mark_end() {
+    // SAFETY: no-operations.
+    unsafe { core::arch::asm!("nop", "nop", options(nomem, nostack, preserves_flags)) }
+}
+
+pub use mpo_mark_begin as mark_begin;
+pub use mpo_mark_end as mark_end;
 
 /// A zero-initialised static (it lands in `.bss`), handed out once as `&'static mut T`: how a
 /// freestanding binary holds state too big for its stack (the device trainer's learner and
@@ -131,97 +141,15 @@ impl<T: bytemuck::Zeroable> Default for ZeroedStatic<T> {
     }
 }
 
-/// `exit_group(2)`.
-pub fn exit(code: i32) -> ! {
-    // SAFETY: exit_group(2) does not return.
-    unsafe {
-        core::arch::asm!("syscall", in("rax") 231usize, in("rdi") code as isize, options(noreturn, nostack));
-    }
-}
+/// Exit code of a panic.
+pub const EXIT_PANIC: i32 = 101;
 
 #[panic_handler]
 fn panic(_: &core::panic::PanicInfo) -> ! {
     write(2, b"panic\n");
-    exit(101)
+    exit(EXIT_PANIC)
 }
 
 /// Never called with `panic = "abort"`, but precompiled `core` objects may reference it.
 #[unsafe(no_mangle)]
 pub extern "C" fn rust_eh_personality() {}
-
-// The compiler lowers copies and fills to these C symbols; with no libc we provide them, in
-// assembly (`rep movsb`/`rep stosb`), because a Rust loop here could itself be lowered back into
-// a call to the function being defined.
-
-/// # Safety
-/// C `memcpy` contract.
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn memcpy(dst: *mut u8, src: *const u8, n: usize) -> *mut u8 {
-    // SAFETY: caller guarantees non-overlapping valid ranges of n bytes.
-    unsafe {
-        core::arch::asm!("rep movsb", inout("rcx") n => _, inout("rdi") dst => _, inout("rsi") src => _, options(nostack, preserves_flags));
-    }
-    dst
-}
-
-/// # Safety
-/// C `memmove` contract.
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn memmove(dst: *mut u8, src: *const u8, n: usize) -> *mut u8 {
-    if (dst as usize) <= (src as usize) || (dst as usize) >= (src as usize) + n {
-        // SAFETY: a forward copy is safe when dst precedes src or the ranges are disjoint.
-        unsafe { memcpy(dst, src, n) }
-    } else {
-        // SAFETY: backward copy with the direction flag set, then cleared again.
-        unsafe {
-            core::arch::asm!(
-                "std", "rep movsb", "cld",
-                inout("rcx") n => _,
-                inout("rdi") dst.add(n - 1) => _,
-                inout("rsi") src.add(n - 1) => _,
-                options(nostack),
-            );
-        }
-        dst
-    }
-}
-
-/// # Safety
-/// C `memset` contract.
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn memset(dst: *mut u8, c: i32, n: usize) -> *mut u8 {
-    // SAFETY: caller guarantees a valid range of n bytes.
-    unsafe {
-        core::arch::asm!("rep stosb", inout("rcx") n => _, inout("rdi") dst => _, in("al") c as u8, options(nostack, preserves_flags));
-    }
-    dst
-}
-
-/// # Safety
-/// C `memcmp` contract.
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn memcmp(a: *const u8, b: *const u8, n: usize) -> i32 {
-    let mut i = 0;
-    while i < n {
-        // SAFETY: caller guarantees valid ranges of n bytes.
-        let (x, y) = unsafe {
-            (
-                core::ptr::read_volatile(a.add(i)),
-                core::ptr::read_volatile(b.add(i)),
-            )
-        };
-        if x != y {
-            return x as i32 - y as i32;
-        }
-        i += 1;
-    }
-    0
-}
-
-/// # Safety
-/// C `bcmp` contract.
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn bcmp(a: *const u8, b: *const u8, n: usize) -> i32 {
-    // SAFETY: same contract as memcmp.
-    unsafe { memcmp(a, b, n) }
-}

@@ -1,4 +1,5 @@
-//! The device trainer: frames in on stdin, frames out on stdout, the learner in `.bss`.
+//! The device trainer: frames in and out over the byte stream (stdin and stdout on Linux, the
+//! UART on the Cortex-M4F board: `mpo-rt`), the learner in `.bss`.
 //!
 //! State machine (docs/device.md): `HELLO` -> `INFO`; `START` (configuration, schedule,
 //! seed) initialises the agent; `BEGIN` opens an episode and answers with the first action;
@@ -7,7 +8,9 @@
 //! changes nothing; `PARAMS` streams the counters and the parameters. A request with the
 //! sequence number of the one before is a repeat (its reply was lost): it gets the last reply
 //! again and changes nothing. A frame the device cannot use gets `ERROR` and changes nothing.
-//! End of input ends the program (exit 0); a read or write error exits 2.
+//! End of input ends the program (exit 0; a UART has none); a read or write error exits 2.
+//! The measurement marks (`mpo_rt::mark_begin`/`mark_end`) bracket `act` and `observe`, so the
+//! instruction counter under QEMU (benches/cortex_m.rs) sees each step and each update.
 #![no_std]
 #![no_main]
 
@@ -224,11 +227,10 @@ impl Device {
             behaviour_log_prob: self.log_prob,
         };
         let mut updates = 0u64;
-        if self
-            .agent
-            .observe(&t, &Serial, &mut |_| updates += 1)
-            .is_err()
-        {
+        mpo_rt::mark_begin();
+        let observed = self.agent.observe(&t, &Serial, &mut |_| updates += 1);
+        mpo_rt::mark_end();
+        if observed.is_err() {
             // The learner undid the failing update; the host stops the run.
             return self.error(Fault::Invalid);
         }
@@ -244,7 +246,9 @@ impl Device {
 
     fn act(&mut self, obs: [f32; OBS]) -> bool {
         self.obs = obs;
+        mpo_rt::mark_begin();
         self.log_prob = self.agent.act(&obs, &mut self.action);
+        mpo_rt::mark_end();
         self.phase = Phase::Acting;
         let a = self.action;
         self.send_action(&a, self.log_prob)
@@ -253,7 +257,7 @@ impl Device {
     fn send_action(&mut self, a: &[f32; ACT], log_prob: f32) -> bool {
         let mut b = [0u8; 4 * ACT + 4];
         put_f32s(a, &mut b[..4 * ACT]);
-        b[4 * ACT..].copy_from_slice(&log_prob.to_le_bytes());
+        b[4 * ACT..].copy_from_slice(&mpo_frames::f32_bytes(log_prob));
         self.send(kind::ACTION, &b)
     }
 
@@ -316,7 +320,7 @@ impl Device {
                 let mut result = Ok(());
                 let mut put = |x: f32| {
                     if result.is_ok() {
-                        result = w(&x.to_le_bytes());
+                        result = w(&mpo_frames::f32_bytes(x));
                     }
                 };
                 live.actor.for_each(&mut put);

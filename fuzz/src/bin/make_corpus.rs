@@ -18,7 +18,7 @@ use mpo_core::rng::Rng;
 use mpo_fuzz::{actions_csv, checkpoint as ck, config, frames, link, task_file};
 use mpo_host::checkpoint;
 use mpo_host::commands;
-use mpo_host::trainer::Trainer;
+use mpo_host::trainer::MlpTrainer as Trainer;
 use mpo_link::controller::{ControllerStats, respond};
 use mpo_link::messages::{ActMsg, CHECKSUM_SEED, ObsMsg, ParamChunk, checksum};
 
@@ -42,7 +42,13 @@ fn small_checkpoint(tmp: &Path) -> [Vec<u8>; 5] {
     let settings = commands::defaults(row);
     let mut t = Tiny::new(&settings, None, 1).unwrap();
     t.collect(8).unwrap();
-    let meta = t.meta(&settings, row, &[], 0.5);
+    let meta = t.meta(checkpoint::Meta::new(
+        settings.clone(),
+        None,
+        row.sizes.clone(),
+        vec![],
+        0.5,
+    ));
     let _ = std::fs::remove_dir_all(tmp);
     std::fs::create_dir_all(tmp).unwrap();
     checkpoint::save(tmp, &t.agent.learner, &t.agent.replay, &meta).unwrap();

@@ -33,6 +33,15 @@
 //! A non-finite value anywhere in an update makes it return an error with every parameter,
 //! optimiser moment and multiplier as it was before the update.
 //!
+//! **Networks.** [`LearnerOf`] takes its policy and critic as types (`P`, `Q`: any form with
+//! the traits of [`crate::network`]); [`Learner`] is it with the two-layer MLPs, the form every
+//! earlier row trains, with the same bits as before the traits existed.
+//!
+//! **Resets.** With `reset_interval > 0` (D'Oro et al., 2023), every `reset_interval` updates the
+//! networks are drawn afresh from the learner's stream, their optimisers and the multipliers
+//! restart and the targets copy them; the replay, the observation normalisation and the
+//! counters stay ([`LearnerOf::reset`]).
+//!
 //! **Where things are.** This file holds the struct, its construction and acting; `update`
 //! runs an update and its phases over the chunks (the parallel loops and the reductions in
 //! batch order); `state` is what an update changes ([`Trainable`]), `scratch` the per-chunk
@@ -41,6 +50,9 @@
 //! [`crate::evaluation`] (targets), [`crate::estep`] (samples, dual terms, weights) and
 //! [`crate::mstep`] (loss terms and head gradients), through the private `nets` for the target
 //! networks.
+
+// `derive(Zeroable)` repeats `LearnerOf`'s bounds on the type parameters its fields are.
+#![allow(clippy::multiple_bound_locations)]
 
 mod error;
 mod scratch;
@@ -60,50 +72,51 @@ use crate::batch::BatchChunk;
 use crate::config::{ConfigError, MpoConfig};
 use crate::critic::Critic;
 use crate::mstep::{Duals, LOG_ALPHA_MAX};
-use crate::params::Params;
+use crate::network::{PolicyTrain, ValueNet};
 use crate::rng::Rng;
 use scratch::{Chunk, Grads};
 
 /// The complete MPO learner for `OBS` observations and `ACT` actions
-/// (`TRI = ACT (ACT + 1) / 2`), actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`, a batch
-/// of `C` chunks of `BC` rows of up to `L` transitions, `M` E-step samples per state and `N`
+/// (`TRI = ACT (ACT + 1) / 2`) with the policy network `P` and the critic `Q`, a batch of `C`
+/// chunks of `BC` rows of up to `L` transitions, `M` E-step samples per state and `N`
 /// next-action samples per next state.
 #[derive(Zeroable)]
-pub struct Learner<
+#[zeroable(bound = "")]
+pub struct LearnerOf<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
     const M: usize,
     const N: usize,
 > {
-    /// Hyperparameters (validated by [`Learner::init`]).
+    /// Hyperparameters (validated by [`LearnerOf::init`]).
     pub cfg: MpoConfig,
     /// Online networks, optimiser states and duals.
-    pub live: Trainable<OBS, ACT, TRI, AH1, AH2, QH1, QH2>,
+    pub live: Trainable<OBS, ACT, TRI, P, Q>,
     /// Target (old) policy.
-    pub target_actor: Actor<OBS, ACT, TRI, AH1, AH2>,
+    pub target_actor: P,
     /// Target critic.
-    pub target_critic: Critic<OBS, ACT, QH1, QH2>,
+    pub target_critic: Q,
     /// Updates completed.
     pub updates: u64,
     /// State of the learner's random stream (restored exactly from checkpoints).
     pub rng_state: [u8; 32],
     /// The batch the next update learns from, in chunks (row `n` is `batch[n / BC]`, slot
-    /// `n % BC`: see [`Learner::slot`]).
+    /// `n % BC`: see [`LearnerOf::slot`]).
     pub batch: [BatchChunk<BC, L, OBS, ACT>; C],
-    backup: Trainable<OBS, ACT, TRI, AH1, AH2, QH1, QH2>,
-    grads: Grads<OBS, ACT, TRI, AH1, AH2, QH1, QH2>,
-    chunks: [Chunk<ACT, TRI, AH1, AH2, QH1, QH2, BC, L, M, N>; C],
+    backup: Trainable<OBS, ACT, TRI, P, Q>,
+    grads: Grads<OBS, ACT, TRI, P, Q>,
+    chunks: [Chunk<OBS, ACT, TRI, P, Q, BC, L, M, N>; C],
 }
 
-impl<
+/// The learner with the two-layer MLPs (actor widths `AH1`, `AH2`, critic widths `QH1`,
+/// `QH2`): [`LearnerOf`] as every row before the residual networks trained it.
+pub type Learner<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
@@ -116,7 +129,31 @@ impl<
     const L: usize,
     const M: usize,
     const N: usize,
-> Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>
+> = LearnerOf<
+    OBS,
+    ACT,
+    TRI,
+    Actor<OBS, ACT, TRI, AH1, AH2>,
+    Critic<OBS, ACT, QH1, QH2>,
+    BC,
+    C,
+    L,
+    M,
+    N,
+>;
+
+impl<
+    const OBS: usize,
+    const ACT: usize,
+    const TRI: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
+    const BC: usize,
+    const C: usize,
+    const L: usize,
+    const M: usize,
+    const N: usize,
+> LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>
 {
     /// Rows in a batch.
     pub const B: usize = BC * C;
@@ -145,12 +182,22 @@ impl<
         }
         self.cfg = cfg;
         let mut rng = Rng::seed_from_u64(seed);
+        self.init_networks(&mut rng);
+        self.updates = 0;
+        self.rng_state = rng.state();
+        Ok(())
+    }
+
+    /// Draws the online networks from `rng`, restarts their optimisers and the multipliers
+    /// and copies the networks into the targets.
+    fn init_networks(&mut self, rng: &mut Rng) {
+        let cfg = self.cfg;
         let l = &mut self.live;
-        l.actor.init(&mut rng, cfg.init_std, cfg.std_floor);
+        l.actor.init(rng, cfg.init_std, cfg.std_floor);
         if cfg.tanh_mean {
-            l.actor.squash.init(1.0);
+            l.actor.squash_mut().init(1.0);
         }
-        l.critic.init(&mut rng);
+        l.critic.init(rng);
         l.actor_m.fill_zero();
         l.actor_v.fill_zero();
         l.critic_m.fill_zero();
@@ -168,9 +215,18 @@ impl<
         };
         self.target_actor.copy_from(&self.live.actor);
         self.target_critic.copy_from(&self.live.critic);
-        self.updates = 0;
+    }
+
+    /// A periodic reset (`reset_interval`, D'Oro et al. 2023): fresh networks drawn from the
+    /// learner's stream, fresh optimisers and multipliers, targets copied; the observation
+    /// normalisation (a statistic of the replay, not learnt) and the counters are kept.
+    pub fn reset(&mut self) {
+        let input = self.live.actor.input().clone();
+        let mut rng = Rng::from_state(self.rng_state);
+        self.init_networks(&mut rng);
         self.rng_state = rng.state();
-        Ok(())
+        *self.live.actor.input_mut() = input.clone();
+        *self.target_actor.input_mut() = input;
     }
 
     /// The chunk and slot of batch row `n`.
@@ -187,7 +243,7 @@ impl<
     }
 
     /// The online policy's action `mu + L z` for given standard-normal draws `z` and its
-    /// log-density (what [`Learner::sample_action`] does with its own draws).
+    /// log-density (what [`LearnerOf::sample_action`] does with its own draws).
     pub fn sample_action_from(
         &self,
         obs: &[f32; OBS],
@@ -208,15 +264,15 @@ impl<
     /// ([`crate::obs_norm`]); the target policy gets the same normalisation, so every
     /// network of an update sees the batch in one scale.
     pub fn fit_obs_norm(&mut self, rows: &[[f32; OBS]]) {
-        self.live.actor.input.fit(rows);
-        self.target_actor.input = self.live.actor.input.clone();
+        self.live.actor.input_mut().fit(rows);
+        *self.target_actor.input_mut() = self.live.actor.input().clone();
     }
 
     /// Normalises the states and next states of `self.batch` (its first `sequence_len`
     /// positions) with the policy's observation normalisation: the batch paths of the
     /// networks take normalised observations.
     pub fn normalize_batch(&mut self) {
-        let (norm, len) = (&self.live.actor.input, self.cfg.sequence_len as usize);
+        let (norm, len) = (self.live.actor.input(), self.cfg.sequence_len as usize);
         for b in self.batch.iter_mut() {
             for k in 0..len {
                 norm.apply_rows(&mut b.obs[k]);
@@ -229,12 +285,12 @@ impl<
     /// network passes (2 FLOPs per multiply-add; forward, weight and input gradients), not the
     /// per-sample Gaussian algebra.
     pub fn flops_per_update(&self) -> u64 {
-        let a_fwd = Actor::<OBS, ACT, TRI, AH1, AH2>::forward_macs() as u64;
-        let c_fwd = Critic::<OBS, ACT, QH1, QH2>::forward_macs() as u64;
-        let c_tail = (QH1 * QH2 + QH2 + ACT * QH1) as u64; // after the shared state block
-        let c_state = (OBS * QH1) as u64;
-        let a_bwd = 2 * a_fwd - (OBS * AH1) as u64; // weight grads + input grads but layer 1
-        let c_bwd = 2 * c_fwd - ((OBS + ACT) * QH1) as u64;
+        let a_fwd = P::forward_macs() as u64;
+        let c_fwd = Q::forward_macs() as u64;
+        let c_state = Q::state_macs() as u64;
+        let c_tail = c_fwd - c_state; // after the shared state block
+        let a_bwd = P::backward_macs() as u64;
+        let c_bwd = Q::backward_macs() as u64;
         let len = self.cfg.sequence_len as u64;
         let next = len * (a_fwd + c_state + N as u64 * c_tail) + (len - 1) * c_tail;
         let estep = if self.cfg.shared_samples {

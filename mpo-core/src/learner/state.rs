@@ -1,37 +1,37 @@
 //! What an update changes and a failed update restores: the online networks, their
 //! optimisers and the duals.
 
+// `derive(Zeroable)` repeats the structs' bounds on the type parameters their fields are.
+#![allow(clippy::multiple_bound_locations)]
+
 use bytemuck::Zeroable;
 
-use crate::actor::Actor;
 use crate::adam::AdamState;
-use crate::critic::Critic;
 use crate::mstep::Duals;
-use crate::params::Params;
+use crate::network::{PolicyTrain, ValueNet};
 
 /// Everything an update changes except the targets: what a failed update restores.
 #[derive(Clone, Zeroable)]
+#[zeroable(bound = "")]
 pub struct Trainable<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
 > {
     /// Online policy.
-    pub actor: Actor<OBS, ACT, TRI, AH1, AH2>,
+    pub actor: P,
     /// Online critic.
-    pub critic: Critic<OBS, ACT, QH1, QH2>,
+    pub critic: Q,
     /// Actor Adam first moments.
-    pub actor_m: Actor<OBS, ACT, TRI, AH1, AH2>,
+    pub actor_m: P,
     /// Actor Adam second moments.
-    pub actor_v: Actor<OBS, ACT, TRI, AH1, AH2>,
+    pub actor_v: P,
     /// Critic Adam first moments.
-    pub critic_m: Critic<OBS, ACT, QH1, QH2>,
+    pub critic_m: Q,
     /// Critic Adam second moments.
-    pub critic_v: Critic<OBS, ACT, QH1, QH2>,
+    pub critic_v: Q,
     /// Actor Adam state.
     pub actor_opt: AdamState,
     /// Critic Adam state.
@@ -44,11 +44,9 @@ impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
-> Trainable<OBS, ACT, TRI, AH1, AH2, QH1, QH2>
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
+> Trainable<OBS, ACT, TRI, P, Q>
 {
     /// Copies every field in place (no temporary on the stack).
     pub fn copy_from(&mut self, o: &Self) {

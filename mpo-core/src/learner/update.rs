@@ -2,23 +2,15 @@
 //! chunks' rows (the per-row code is in the phase's module) followed by reductions in batch
 //! order.
 
-use crate::actor::ActorGradInputs;
 use crate::adam::{AdamConfig, adam_step_with};
-use crate::critic::CriticGradInputs;
 use crate::estep::{DualSums, SampleSums, solve_temperature_with};
 use crate::mstep::{LossScale, TermSums, update_multipliers};
 use crate::nets::{TargetPass, critic_input};
+use crate::network::{PolicyGradInputs, PolicyTrain, ValueGradInputs, ValueNet};
 use crate::parallel::{Parallel, Serial};
-use crate::params::Params;
 use crate::rng::Rng;
 
-use super::{Learner, NonFinite, UpdateError, UpdateStats};
-
-/// Weight-gradient rows per parameter block: a multiple of the kernel's 6-row tile, about
-/// eight blocks at a width of 256.
-const fn block_rows(h: usize) -> usize {
-    6 * h.div_ceil(48)
-}
+use super::{LearnerOf, NonFinite, UpdateError, UpdateStats};
 
 /// The factor that clips a gradient of global norm `norm` to `max` (1 when it is inside).
 fn clip_scale(norm: f32, max: f32) -> f32 {
@@ -29,16 +21,14 @@ impl<
     const OBS: usize,
     const ACT: usize,
     const TRI: usize,
-    const AH1: usize,
-    const AH2: usize,
-    const QH1: usize,
-    const QH2: usize,
+    P: PolicyTrain<OBS, ACT, TRI>,
+    Q: ValueNet<OBS, ACT>,
     const BC: usize,
     const C: usize,
     const L: usize,
     const M: usize,
     const N: usize,
-> Learner<OBS, ACT, TRI, AH1, AH2, QH1, QH2, BC, C, L, M, N>
+> LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>
 {
     /// One learner update on `self.batch`, on the calling thread. On error nothing but the
     /// random stream has changed.
@@ -46,8 +36,8 @@ impl<
         self.update_with(&Serial)
     }
 
-    /// [`Learner::update`] with the work spread by `par`; the same bits for any `par`.
-    pub fn update_with<P: Parallel>(&mut self, par: &P) -> Result<UpdateStats, UpdateError> {
+    /// [`LearnerOf::update`] with the work spread by `par`; the same bits for any `par`.
+    pub fn update_with<Par: Parallel>(&mut self, par: &Par) -> Result<UpdateStats, UpdateError> {
         let len = self.cfg.sequence_len as usize;
         if !self.batch.iter().all(|b| b.all_finite(len)) {
             return Err(UpdateError::NonFinite(NonFinite::Batch));
@@ -68,6 +58,10 @@ impl<
                     self.target_actor.copy_from(&self.live.actor);
                     self.target_critic.copy_from(&self.live.critic);
                 }
+                let every = self.cfg.reset_interval as u64;
+                if every > 0 && self.updates.is_multiple_of(every) {
+                    self.reset();
+                }
                 Ok(stats)
             }
             Err(e) => {
@@ -77,9 +71,9 @@ impl<
         }
     }
 
-    fn update_inner<P: Parallel>(
+    fn update_inner<Par: Parallel>(
         &mut self,
-        par: &P,
+        par: &Par,
         seed: u64,
     ) -> Result<UpdateStats, UpdateError> {
         let mut stats = UpdateStats::default();
@@ -101,9 +95,11 @@ impl<
     /// Every row's work that needs only the target networks and the online critic: the
     /// E-step samples and their values, the policy-evaluation target, the online critic's
     /// forward pass and its gradient down to the hidden layers. Then the row statistics.
-    fn evaluate_and_sample<P: Parallel>(
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
+    fn evaluate_and_sample<Par: Parallel>(
         &mut self,
-        par: &P,
+        par: &Par,
         seed: u64,
         stats: &mut UpdateStats,
     ) -> Result<(), UpdateError> {
@@ -115,7 +111,7 @@ impl<
             &self.target_critic,
         );
         let (critic, ct) = (&self.live.critic, &self.grads.ct);
-        let (ln, len) = (cfg.critic_layer_norm, cfg.sequence_len as usize);
+        let len = cfg.sequence_len as usize;
         let inv_b = 1.0 / Self::B as f32;
         par.for_each(&mut self.chunks, &|c, ch| {
             let (b, first_row) = (&batch[c], c * BC);
@@ -132,9 +128,10 @@ impl<
             ch.eval.compute(&mut nets, b, len, seed, first_row, shared);
             let p = &mut ch.passes;
             let act = critic_input(cfg, &b.action[0], &mut ch.critic_action);
-            critic.forward(&b.obs[0], act, &mut p.ctape, &mut p.q, ln);
-            ch.eval.residuals(&p.q, inv_b, &mut ch.dq);
-            critic.backprop(&mut p.ctape, &ch.dq, ct, ln);
+            critic.values(&b.obs[0], act, &mut p.ctape, &mut p.q, cfg);
+            let e = &mut ch.eval;
+            critic.loss(&mut p.ctape, &p.q, &e.target, inv_b, cfg, &mut e.loss);
+            critic.backprop(&mut p.ctape, ct, cfg);
             if cfg.action_penalization {
                 ch.estep.penalize();
             }
@@ -162,9 +159,11 @@ impl<
     }
 
     /// The critic's weight gradients (by parameter blocks), clipping and one Adam step.
-    fn critic_step<P: Parallel>(
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
+    fn critic_step<Par: Parallel>(
         &mut self,
-        par: &P,
+        par: &Par,
         stats: &mut UpdateStats,
     ) -> Result<(), UpdateError> {
         let chunks = &self.chunks;
@@ -178,36 +177,14 @@ impl<
                 &batch[c].action[0][..]
             }
         });
-        let tape = |c: usize| &chunks[c].passes.ctape;
-        let h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &tape(c).h1[..]);
-        let h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &tape(c).h2[..]);
-        let d_h1: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &tape(c).d_h1[..]);
-        let d_h2: [&[[f32; QH2]]; C] = core::array::from_fn(|c| &tape(c).d_h2[..]);
-        let dq: [&[[f32; 1]]; C] = core::array::from_fn(|c| &chunks[c].dq[..]);
-        let xhat: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &tape(c).xhat[..]);
-        let d_y: [&[[f32; QH1]]; C] = core::array::from_fn(|c| &tape(c).d_y[..]);
-        let inputs = CriticGradInputs {
+        let tapes: [&Q::Tape<BC>; C] = core::array::from_fn(|c| &chunks[c].passes.ctape);
+        let inputs = ValueGradInputs {
             obs: &obs,
             act: &act,
-            h1: &h1,
-            h2: &h2,
-            d_h1: &d_h1,
-            d_h2: &d_h2,
-            dq: &dq,
-            xhat: &xhat,
-            d_y: &d_y,
-            layer_norm: self.cfg.critic_layer_norm,
+            tapes: &tapes,
         };
-        let mut parts: heapless::Vec<_, { crate::actor::MAX_PARTS }> = self
-            .grads
-            .critic
-            .grad_parts(block_rows(QH1))
-            .into_iter()
-            .map(|p| (p, 0f64))
-            .collect();
-        par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
-        let norm = libm::sqrt(parts.iter().map(|(_, sq)| *sq).sum::<f64>()) as f32;
-        drop(parts);
+        let sq = Q::weight_grads(&mut self.grads.critic, par, &inputs, &self.cfg);
+        let norm = libm::sqrt(sq) as f32;
         stats.critic_grad_norm = norm;
         if !norm.is_finite() {
             return Err(UpdateError::NonFinite(NonFinite::CriticGradients));
@@ -228,7 +205,13 @@ impl<
     }
 
     /// Temperatures, weights and the per-state sample statistics of the M-step.
-    fn e_step<P: Parallel>(&mut self, par: &P, stats: &mut UpdateStats) -> Result<(), UpdateError> {
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
+    fn e_step<Par: Parallel>(
+        &mut self,
+        par: &Par,
+        stats: &mut UpdateStats,
+    ) -> Result<(), UpdateError> {
         let cfg = self.cfg;
         let sol = solve_temperature_with(
             cfg.eps_eta,
@@ -273,7 +256,13 @@ impl<
 
     /// One M-step iteration: the actor's gradient (rows, then parameter blocks), clipping,
     /// one Adam step, then one step of the multipliers.
-    fn m_step<P: Parallel>(&mut self, par: &P, stats: &mut UpdateStats) -> Result<(), UpdateError> {
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
+    fn m_step<Par: Parallel>(
+        &mut self,
+        par: &Par,
+        stats: &mut UpdateStats,
+    ) -> Result<(), UpdateError> {
         let cfg = self.cfg;
         self.live.actor.transpose_into(&mut self.grads.at);
         let (actor, at, batch) = (&self.live.actor, &self.grads.at, &self.batch);
@@ -287,7 +276,7 @@ impl<
             let (p, e, m) = (&mut ch.passes, &ch.estep, &mut ch.mstep);
             actor.forward(states, &mut p.atape, &mut p.mean, &mut p.chol);
             m.gradients(&e.old, &e.stats, &p.mean, &p.chol, &scale, cfg.std_floor);
-            actor.squash_backward(&p.mean, &mut m.d_mean);
+            actor.squash().backward_rows(&p.mean, &mut m.d_mean);
             actor.backprop(&mut p.atape, &m.d_mean, &m.d_chol, at);
         });
         let mut sums = TermSums::default();
@@ -331,7 +320,9 @@ impl<
 
     /// The actor's weight gradients by parameter blocks from the chunks' tapes; returns the
     /// global norm (before clipping).
-    fn actor_gradient<P: Parallel>(&mut self, par: &P) -> f32 {
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
+    fn actor_gradient<Par: Parallel>(&mut self, par: &Par) -> f32 {
         let (chunks, batch, shared) = (&self.chunks, &self.batch, self.cfg.shared_samples);
         let obs: [&[[f32; OBS]]; C] = core::array::from_fn(|c| {
             if shared {
@@ -340,36 +331,23 @@ impl<
                 &batch[c].obs[0][..]
             }
         });
-        let tape = |c: usize| &chunks[c].passes.atape;
-        let h1: [&[[f32; AH1]]; C] = core::array::from_fn(|c| &tape(c).h1[..]);
-        let h2: [&[[f32; AH2]]; C] = core::array::from_fn(|c| &tape(c).h2[..]);
-        let d_h1: [&[[f32; AH1]]; C] = core::array::from_fn(|c| &tape(c).d_h1[..]);
-        let d_h2: [&[[f32; AH2]]; C] = core::array::from_fn(|c| &tape(c).d_h2[..]);
+        let tapes: [&P::Tape<BC>; C] = core::array::from_fn(|c| &chunks[c].passes.atape);
         let d_mean: [&[[f32; ACT]]; C] = core::array::from_fn(|c| &chunks[c].mstep.d_mean[..]);
         let d_chol: [&[[f32; TRI]]; C] = core::array::from_fn(|c| &chunks[c].mstep.d_chol[..]);
-        let inputs = ActorGradInputs {
+        let inputs = PolicyGradInputs {
             obs: &obs,
-            h1: &h1,
-            h2: &h2,
-            d_h1: &d_h1,
-            d_h2: &d_h2,
+            tapes: &tapes,
             d_mean: &d_mean,
             d_chol: &d_chol,
         };
-        let mut parts: heapless::Vec<_, { crate::actor::MAX_PARTS }> = self
-            .grads
-            .actor
-            .grad_parts(block_rows(AH1))
-            .into_iter()
-            .map(|p| (p, 0f64))
-            .collect();
-        par.for_each(&mut parts, &|_, (p, sq)| *sq = p.compute(&inputs));
-        libm::sqrt(parts.iter().map(|(_, sq)| *sq).sum::<f64>()) as f32
+        libm::sqrt(P::weight_grads(&mut self.grads.actor, par, &inputs)) as f32
     }
 
     /// The summed dual terms of every chunk at `eta` (of the penalty objective when
     /// `penalty`), computed by `par` and added in batch order.
-    fn dual_sums<P: Parallel>(&mut self, par: &P, eta: f64, penalty: bool) -> DualSums {
+    // Never inlined: a phase is a function of its own in profiles (docs/core.md).
+    #[inline(never)]
+    fn dual_sums<Par: Parallel>(&mut self, par: &Par, eta: f64, penalty: bool) -> DualSums {
         par.for_each(&mut self.chunks, &|_, ch| ch.estep.dual_rows(eta, penalty));
         let mut s = DualSums::default();
         for ch in &self.chunks {

@@ -26,7 +26,7 @@ mod tiles;
 #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
 pub mod wide;
 
-pub use order::{Start, mul_add, relu_one};
+pub use order::{Start, mul_add, relu_one, sqrt};
 
 use bytemuck::Zeroable;
 
@@ -480,6 +480,55 @@ mod tests {
             let bits = reference_bits(&l, &x[n]);
             for o in 0..O {
                 assert_eq!(y[n][o].to_bits(), bits[o].to_bits(), "n {n} o {o}");
+            }
+        }
+    }
+
+    /// Narrow outputs and columns of every width the tiles distinguish (1 and 2: one scalar
+    /// chain or padded lanes forward, four row blocks in the gradient; 3-4: two; 5-7: one),
+    /// behind a full 8-wide strip, with enough rows for every gradient tile (45 = 32 + 8 + 5)
+    /// and samples for the 8-sample tile and single rows (13): the reference order bit for
+    /// bit, forward from a bias and the gradient over two chunks.
+    #[test]
+    fn narrow_widths_match_the_reference_order() {
+        narrow_width::<9>();
+        narrow_width::<10>();
+        narrow_width::<12>();
+        narrow_width::<15>();
+        narrow_width::<1>();
+        narrow_width::<6>();
+    }
+
+    fn narrow_width<const O: usize>() {
+        const I: usize = 45;
+        const B: usize = 13;
+        let l = layer::<I, O>(50 + O as u64);
+        let mut rng = Rng::seed_from_u64(51);
+        let mut x = [[0f32; I]; B];
+        let mut dy = [[0f32; O]; B];
+        rng.fill_normal(x.as_flattened_mut());
+        rng.fill_normal(dy.as_flattened_mut());
+        let mut y = [[0f32; O]; B];
+        kernel_from::<I, O, false>(&x, &l.w, Start::Row(&l.b), &mut y, 0);
+        for n in 0..B {
+            let bits = reference_bits(&l, &x[n]);
+            for o in 0..O {
+                let at = format_args!("O {O} n {n} o {o}");
+                assert_eq!(y[n][o].to_bits(), bits[o].to_bits(), "forward, {at}");
+            }
+        }
+        let mut g = [[0f32; O]; I];
+        let xs: [&[[f32; I]]; 2] = [&x[..4], &x[4..]];
+        let ds: [&[[f32; O]]; 2] = [&dy[..4], &dy[4..]];
+        weight_grad_from(&xs, &ds, 0, &mut g, 0);
+        for i in 0..I {
+            for o in 0..O {
+                let mut r = 0f32;
+                for n in 0..B {
+                    r = libm::fmaf(x[n][i], dy[n][o], r);
+                }
+                let at = format_args!("O {O} i {i} o {o}");
+                assert_eq!(g[i][o].to_bits(), r.to_bits(), "weight gradient, {at}");
             }
         }
     }

@@ -30,11 +30,23 @@ impl<const O: usize> Start<'_, O> {
 /// `a * b + c` with one rounding (IEEE 754 fusedMultiplyAdd).
 ///
 /// On x86-64 builds with the `fma` target feature (the workspace's x86-64-v3 host target) this
-/// is the FMA instruction, which the compiler vectorises; elsewhere (the baseline target of the
-/// freestanding binaries, microcontrollers) it is `libm::fmaf`, correctly rounded in software
-/// or with the instruction when the CPU has one. Both give the same bits for the same inputs.
+/// is the FMA instruction, which the compiler vectorises; on a Cortex-M with an FPU (every
+/// M-profile FPU, FPv4-SP onwards, has it) the `vfma.f32` instruction; elsewhere (the baseline
+/// target of the x86-64 freestanding binaries) `libm::fmaf`, correctly rounded in software.
+/// All give the same bits for the same inputs (tests/cortex_m.rs runs the Cortex-M4F build).
 #[inline(always)]
 pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+    #[cfg(all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    ))]
+    {
+        // Stable Rust has no fused multiply-add in `core`, and its inline assembly offers no FPU
+        // register on this target; the Cortex-M build is a nightly-feature build anyway (it
+        // builds `core` from source), so `core`'s unstable one, which is the instruction.
+        core::f32::math::mul_add(a, b, c)
+    }
     #[cfg(all(target_arch = "x86_64", target_feature = "fma"))]
     {
         use core::arch::x86_64::{_mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss};
@@ -46,9 +58,39 @@ pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
             _mm_cvtss_f32(_mm_fmadd_ss(_mm_set_ss(a), _mm_set_ss(b), _mm_set_ss(c)))
         }
     }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "fma")))]
+    #[cfg(not(any(
+        all(target_arch = "x86_64", target_feature = "fma"),
+        all(
+            target_arch = "arm",
+            target_feature = "mclass",
+            target_feature = "fpregs"
+        )
+    )))]
     {
         libm::fmaf(a, b, c)
+    }
+}
+
+/// The square root, correctly rounded (so the same bits everywhere): on a Cortex-M with an FPU
+/// the `vsqrt.f32` instruction, elsewhere `libm::sqrtf` (which uses the instruction on x86).
+/// For the hot loops (Adam: one per parameter per update).
+#[inline(always)]
+pub fn sqrt(x: f32) -> f32 {
+    #[cfg(all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    ))]
+    {
+        core::f32::math::sqrt(x)
+    }
+    #[cfg(not(all(
+        target_arch = "arm",
+        target_feature = "mclass",
+        target_feature = "fpregs"
+    )))]
+    {
+        libm::sqrtf(x)
     }
 }
 

@@ -11,15 +11,39 @@ const LANES: usize = 8;
 /// Samples per tile of the batch forward kernel: 4 x 3 accumulators, 3 weight registers and
 /// one broadcast fill the 16 AVX2 registers (the other shapes tried were slower:
 /// docs/core.md, "Kernels").
+#[cfg(not(target_arch = "arm"))]
 const TILE_N: usize = 4;
+/// Output vectors (of [`LANES`]) per strip of the batch kernels: 3 (twelve AVX2 accumulators).
+#[cfg(not(target_arch = "arm"))]
+const STRIP: usize = 3;
 /// Samples per tile of the narrow-output kernel.
 const TILE_N_NARROW: usize = 8;
 /// Input rows per tile of the weight-gradient kernel (same register budget).
-#[cfg(feature = "train")]
+#[cfg(all(feature = "train", not(target_arch = "arm")))]
 const TILE_I: usize = 4;
 /// Output chunk of the single-sample kernel: eight AVX2 registers of independent accumulators,
 /// enough to hide the FMA latency.
+#[cfg(not(target_arch = "arm"))]
 const CHUNK_1: usize = 64;
+
+// A Cortex-M4F has 32 single-precision registers and no SIMD: tiles of 2 samples (input rows)
+// by 8 outputs keep 16 accumulators, 8 weights and the inputs in registers (the x86 tiles, 96
+// accumulators, spill every one of them to the stack), and the single-sample kernel keeps 16
+// accumulators. Every output is still summed in the same order, so the bits are the same
+// (tests/cortex_m.rs, mpo-host/tests/device.rs); only the instruction count changes
+// (benches/cortex_m.rs).
+#[cfg(target_arch = "arm")]
+const TILE_N: usize = 2;
+#[cfg(target_arch = "arm")]
+const STRIP: usize = 1;
+#[cfg(all(feature = "train", target_arch = "arm"))]
+const TILE_I: usize = 2;
+#[cfg(target_arch = "arm")]
+const CHUNK_1: usize = 16;
+
+/// Whether the single-state kernel's narrow head skips zero inputs (x86: yes; a Cortex-M: no,
+/// see [`accumulate_one`]). The sums are the same either way.
+const NARROW_SKIPS_ZEROS: bool = cfg!(not(target_arch = "arm"));
 
 /// The 8-wide batch kernel for outputs `o0..O` (all of [`kernel`] but its dispatch).
 pub(super) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
@@ -29,15 +53,15 @@ pub(super) fn kernel_from<const I: usize, const O: usize, const RELU: bool>(
     y: &mut [[f32; O]],
     mut o0: usize,
 ) {
-    while o0 + 3 * LANES <= O {
-        accumulate_strip::<I, O, 3, RELU>(x, w, start, y, o0);
-        o0 += 3 * LANES;
+    while o0 + STRIP * LANES <= O {
+        accumulate_strip::<I, O, STRIP, RELU>(x, w, start, y, o0);
+        o0 += STRIP * LANES;
     }
-    if o0 + 2 * LANES <= O {
+    if STRIP > 2 && o0 + 2 * LANES <= O {
         accumulate_strip::<I, O, 2, RELU>(x, w, start, y, o0);
         o0 += 2 * LANES;
     }
-    if o0 + LANES <= O {
+    if STRIP > 1 && o0 + LANES <= O {
         accumulate_strip::<I, O, 1, RELU>(x, w, start, y, o0);
         o0 += LANES;
     }
@@ -120,8 +144,16 @@ fn accumulate_tile<
     }
 }
 
-/// Outputs `o0..O` (fewer than 8) for every row: eight samples at a time keep eight
-/// independent accumulator vectors busy, which a single narrow row could not.
+/// Whether `mul_add` is one instruction here (x86-64 with FMA): then a lane computed and
+/// thrown away costs no more than a scalar one, and narrow outputs are padded to a register.
+const HW_FMA: bool = cfg!(all(target_arch = "x86_64", target_feature = "fma"));
+
+/// Outputs `o0..O` (the last `O % 8`, fewer than 8) for every row. With a hardware FMA, the
+/// narrow columns of each weight row are padded with zeros to a full 8-lane register, so a
+/// tile of 8 samples is 8 vector FMAs per input (the padded lanes' results are dropped; each
+/// real output is still its start value and one FMA per input in ascending order). A single
+/// output column gains nothing from padding, and software FMA (the freestanding baseline
+/// target) pays for every lane, so both keep one scalar chain per output.
 fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
     x: &[[f32; I]],
     w: &[[f32; O]; I],
@@ -129,30 +161,93 @@ fn accumulate_narrow<const I: usize, const O: usize, const RELU: bool>(
     y: &mut [[f32; O]],
     o0: usize,
 ) {
-    let width = O - o0;
+    // A compile-time constant in every instance (the strips end at the last multiple of 8).
+    let width = O % LANES;
+    assert_eq!(
+        o0 + width,
+        O,
+        "narrow outputs start at the last multiple of 8"
+    );
+    let o0 = O - width;
+    let padded = HW_FMA && width >= 2;
     let mut n0 = 0;
+    while n0 + TILE_N_NARROW <= x.len() {
+        if padded {
+            narrow_tile_padded::<I, O, TILE_N_NARROW, RELU>(x, w, start, y, n0, o0);
+        } else {
+            narrow_tile_scalar::<I, O, TILE_N_NARROW, RELU>(x, w, start, y, n0, o0);
+        }
+        n0 += TILE_N_NARROW;
+    }
     while n0 < x.len() {
-        let tn = TILE_N_NARROW.min(x.len() - n0);
-        let mut acc = [[0f32; LANES]; TILE_N_NARROW];
-        for s in 0..tn {
-            acc[s][..width].copy_from_slice(&start.row(y, n0 + s)[o0..]);
-        }
-        for i in 0..I {
-            let wr = &w[i][o0..];
-            for s in 0..tn {
-                let xs = x[n0 + s][i];
-                for (a, wv) in acc[s][..width].iter_mut().zip(wr) {
-                    *a = mul_add(xs, *wv, *a);
-                }
+        narrow_tile_scalar::<I, O, 1, RELU>(x, w, start, y, n0, o0);
+        n0 += 1;
+    }
+}
+
+/// `TN` samples from `n0` by the narrow outputs `o0..O`, in padded 8-lane registers.
+#[inline(always)]
+fn narrow_tile_padded<const I: usize, const O: usize, const TN: usize, const RELU: bool>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+    n0: usize,
+    o0: usize,
+) {
+    let width = O - o0;
+    let xs: &[[f32; I]; TN] = x[n0..n0 + TN].try_into().unwrap();
+    let mut acc = [[0f32; LANES]; TN];
+    for s in 0..TN {
+        acc[s][..width].copy_from_slice(&start.row(y, n0 + s)[o0..]);
+    }
+    for i in 0..I {
+        let mut wr = [0f32; LANES];
+        wr[..width].copy_from_slice(&w[i][o0..]);
+        for s in 0..TN {
+            let xv = xs[s][i];
+            for l in 0..LANES {
+                acc[s][l] = mul_add(xv, wr[l], acc[s][l]);
             }
         }
-        for s in 0..tn {
-            for l in 0..width {
-                let v = acc[s][l];
-                y[n0 + s][o0 + l] = if RELU { relu_one(v) } else { v };
+    }
+    for s in 0..TN {
+        for l in 0..width {
+            let v = acc[s][l];
+            y[n0 + s][o0 + l] = if RELU { relu_one(v) } else { v };
+        }
+    }
+}
+
+/// `TN` samples from `n0` by the narrow outputs `o0..O`, one scalar chain per output.
+#[inline(always)]
+fn narrow_tile_scalar<const I: usize, const O: usize, const TN: usize, const RELU: bool>(
+    x: &[[f32; I]],
+    w: &[[f32; O]; I],
+    start: Start<'_, O>,
+    y: &mut [[f32; O]],
+    n0: usize,
+    o0: usize,
+) {
+    let width = O - o0;
+    let mut acc = [[0f32; LANES]; TN];
+    for s in 0..TN {
+        acc[s][..width].copy_from_slice(&start.row(y, n0 + s)[o0..]);
+    }
+    for i in 0..I {
+        let wr = &w[i][o0..];
+        for s in 0..TN {
+            let xs = x[n0 + s][i];
+            for (a, wv) in acc[s][..width].iter_mut().zip(wr) {
+                *a = mul_add(xs, *wv, *a);
             }
         }
-        n0 += tn;
+    }
+    for s in 0..TN {
+        for l in 0..width {
+            let v = acc[s][l];
+            y[n0 + s][o0 + l] = if RELU { relu_one(v) } else { v };
+        }
     }
 }
 
@@ -178,7 +273,7 @@ pub(super) fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
     let skip = !init.iter().any(|v| v.to_bits() == (-0.0f32).to_bits());
     let mut nz = [0u32; I];
     let mut n = 0;
-    if O >= CHUNK_1 {
+    if O >= CHUNK_1 || NARROW_SKIPS_ZEROS {
         for (i, &xi) in x.iter().enumerate() {
             nz[n] = i as u32;
             n += (!skip || xi != 0.0) as usize;
@@ -199,10 +294,23 @@ pub(super) fn accumulate_one<const I: usize, const O: usize, const RELU: bool>(
         init[o0..o0 + CHUNK_1].copy_from_slice(&acc);
         o0 += CHUNK_1;
     }
-    if o0 < O {
-        // The rest of the outputs (a narrow head) together: one chain per output. Every
-        // input (exactly the same as skipping zeros, above): a narrow head's weights are few
-        // and stay in L1, and the full loop has a constant trip count the compiler unrolls.
+    if o0 < O && NARROW_SKIPS_ZEROS {
+        // The rest of the outputs (a narrow head) together: one chain per output, over the
+        // non-zero inputs only. On an out-of-order x86 core a narrow head's few chains are
+        // bound by the FMA's latency (four cycles per input, one input after another), so the
+        // skipped half of a ReLU layer's inputs is half of its time.
+        for &i in nz {
+            let i = i as usize;
+            let xi = x[i];
+            for o in o0..O {
+                init[o] = mul_add(xi, w[i][o], init[o]);
+            }
+        }
+    } else if o0 < O {
+        // Every input (exactly the same sums as skipping the zeros): on an in-order Cortex-M
+        // the index list costs more instructions than the skipped fused multiply-adds save,
+        // and the loop's constant trip count unrolls (benches/cortex_m.rs: 10,467 instructions
+        // per cartpole inference this way, 11,480 with the skip).
         for i in 0..I {
             let xi = x[i];
             for o in o0..O {
@@ -225,15 +333,15 @@ pub(super) fn weight_grad_from<const I: usize, const O: usize>(
     gw: &mut [[f32; O]],
     mut o0: usize,
 ) {
-    while o0 + 3 * LANES <= O {
-        weight_grad_strip::<I, O, 3>(x, dy, i0, gw, o0);
-        o0 += 3 * LANES;
+    while o0 + STRIP * LANES <= O {
+        weight_grad_strip::<I, O, STRIP>(x, dy, i0, gw, o0);
+        o0 += STRIP * LANES;
     }
-    if o0 + 2 * LANES <= O {
+    if STRIP > 2 && o0 + 2 * LANES <= O {
         weight_grad_strip::<I, O, 2>(x, dy, i0, gw, o0);
         o0 += 2 * LANES;
     }
-    if o0 + LANES <= O {
+    if STRIP > 1 && o0 + LANES <= O {
         weight_grad_strip::<I, O, 1>(x, dy, i0, gw, o0);
         o0 += LANES;
     }
@@ -304,7 +412,12 @@ fn weight_grad_tile<const I: usize, const O: usize, const TI: usize, const K: us
 }
 
 #[cfg(feature = "train")]
-/// Columns `o0..O` (fewer than 8) of [`weight_grad_chunks`]: eight input rows at a time.
+/// Columns `o0..O` (the last `O % 8`, fewer than 8) of [`weight_grad_chunks`]. The lanes of a
+/// register are 8 consecutive input rows (one sample's activations `x[n][i..i + 8]` are
+/// contiguous) and each narrow column has its own accumulators, so every lane is one entry
+/// `gw[i][o]`, summed over the samples in order as everywhere else; tiles of 8, 16 or 32
+/// rows keep enough independent chains in flight. Rows left over (fewer than 8) go one at a
+/// time.
 fn weight_grad_narrow<const I: usize, const O: usize>(
     x: &[&[[f32; I]]],
     dy: &[&[[f32; O]]],
@@ -312,26 +425,83 @@ fn weight_grad_narrow<const I: usize, const O: usize>(
     gw: &mut [[f32; O]],
     o0: usize,
 ) {
-    const TI: usize = 8;
-    let width = O - o0;
+    let width = O % LANES;
+    assert_eq!(
+        o0 + width,
+        O,
+        "narrow columns start at the last multiple of 8"
+    );
+    let o0 = O - width;
+    let rows = gw.len();
     let mut r = 0;
-    while r < gw.len() {
-        let ti = TI.min(gw.len() - r);
-        let mut acc = [[0f32; LANES]; TI];
+    // About eight accumulator registers per tile: 4 blocks of rows for 1-2 columns, 2 for
+    // 3-4, 1 for more.
+    let k = match width {
+        1 | 2 => 4,
+        3 | 4 => 2,
+        _ => 1,
+    };
+    while k == 4 && r + 4 * LANES <= rows {
+        grad_narrow_tile::<I, O, 4>(x, dy, i0 + r, &mut gw[r..r + 4 * LANES], o0);
+        r += 4 * LANES;
+    }
+    while k >= 2 && r + 2 * LANES <= rows {
+        grad_narrow_tile::<I, O, 2>(x, dy, i0 + r, &mut gw[r..r + 2 * LANES], o0);
+        r += 2 * LANES;
+    }
+    while r + LANES <= rows {
+        grad_narrow_tile::<I, O, 1>(x, dy, i0 + r, &mut gw[r..r + LANES], o0);
+        r += LANES;
+    }
+    while r < rows {
+        let mut acc = [0f32; LANES];
         for (xc, dc) in x.iter().zip(dy) {
             for (xn, dn) in xc.iter().zip(dc.iter()) {
-                let d = &dn[o0..];
-                for k in 0..ti {
-                    let xk = xn[i0 + r + k];
-                    for (a, dv) in acc[k][..width].iter_mut().zip(d) {
-                        *a = mul_add(xk, *dv, *a);
+                let xk = xn[i0 + r];
+                for (a, dv) in acc[..width].iter_mut().zip(&dn[o0..]) {
+                    *a = mul_add(xk, *dv, *a);
+                }
+            }
+        }
+        gw[r][o0..].copy_from_slice(&acc[..width]);
+        r += 1;
+    }
+}
+
+#[cfg(feature = "train")]
+/// `8 K` input rows from `i` by the narrow columns `o0..O` of the weight gradient, lanes
+/// over rows, written into `gw` (`8 K` rows).
+#[inline(always)]
+fn grad_narrow_tile<const I: usize, const O: usize, const K: usize>(
+    x: &[&[[f32; I]]],
+    dy: &[&[[f32; O]]],
+    i: usize,
+    gw: &mut [[f32; O]],
+    o0: usize,
+) {
+    let width = O - o0;
+    let mut acc = [[[0f32; LANES]; K]; LANES];
+    for (xc, dc) in x.iter().zip(dy) {
+        for (xn, dn) in xc.iter().zip(dc.iter()) {
+            let mut xv = [[0f32; LANES]; K];
+            for k in 0..K {
+                xv[k] = xn[i + LANES * k..i + LANES * (k + 1)].try_into().unwrap();
+            }
+            for o in 0..width {
+                let d = dn[o0 + o];
+                for k in 0..K {
+                    for l in 0..LANES {
+                        acc[o][k][l] = mul_add(xv[k][l], d, acc[o][k][l]);
                     }
                 }
             }
         }
-        for k in 0..ti {
-            gw[r + k][o0..].copy_from_slice(&acc[k][..width]);
+    }
+    for o in 0..width {
+        for k in 0..K {
+            for l in 0..LANES {
+                gw[LANES * k + l][o0 + o] = acc[o][k][l];
+            }
         }
-        r += ti;
     }
 }

@@ -22,6 +22,9 @@ pub struct ExportSummary {
     pub act: usize,
     /// Hidden widths.
     pub hidden: [usize; 2],
+    /// Residual blocks of the actor (0: the two-layer MLP, `hidden` its widths; otherwise
+    /// `hidden` is the width and the blocks' inner width).
+    pub blocks: usize,
     /// Scalar parameters of the actor (what the firmware keeps in flash, 4 bytes each).
     pub parameters: usize,
 }
@@ -52,6 +55,7 @@ pub fn export(args: &ExportArgs) -> Result<ExportSummary, Error> {
         obs: t.policy.obs_dim(),
         act: t.policy.act_dim(),
         hidden: t.policy.hidden(),
+        blocks: t.policy.blocks(),
         parameters: t.policy.parameters(),
     })
 }

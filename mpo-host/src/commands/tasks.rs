@@ -11,7 +11,7 @@ use crate::settings::PolicyEvaluation;
 /// whether this build has a learner of the row's sizes).
 pub fn tasks_listing(files: &[PathBuf]) -> String {
     let mut s = format!(
-        "{:<28} {:>4} {:>3}  {:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {:<12} {:>5} {:>9}\n",
+        "{:<28} {:>4} {:>3}  {:<10} {:>11} {:>20} {:>4} {:>3} {:>3}  {:<12} {:>5} {:>9}\n",
         "task",
         "obs",
         "act",
@@ -39,7 +39,9 @@ pub fn tasks_listing(files: &[PathBuf]) -> String {
         }
     }
     s.push_str(
-        "\nA row's whole configuration: mpo train --task T [--net N] --print-config \
+        "\nactor, critic: an MLP's two widths (A-B), or a residual network of width W, inner \
+         width F and D blocks ([W,F]xD); K bins: a categorical critic over K atoms.\n\
+         A row's whole configuration: mpo train --task T [--net N] --print-config \
          (a task file: --task-file F)\n",
     );
     s
@@ -80,11 +82,21 @@ fn describe(r: &Row) -> String {
         true => "pink".to_string(),
         false => r.schedule.noise_corr.to_string(),
     };
+    // An MLP's two widths `A-B`; a residual network's width, inner width and blocks `[W,F]xD`
+    // (as `spec!` writes them); a categorical critic's atoms after it.
+    let net = |w: [usize; 2], blocks: usize| match blocks {
+        0 => format!("{}-{}", w[0], w[1]),
+        d => format!("[{},{}]x{d}", w[0], w[1]),
+    };
+    let critic = match z.bins {
+        1 => net(z.critic, z.critic_blocks),
+        k => format!("{} {k} bins", net(z.critic, z.critic_blocks)),
+    };
     format!(
-        "{:<8} {:>9} {:>9} {:>4} {:>3} {:>3}  {eval:<12} {noise:>5} {:>9}",
+        "{:<10} {:>11} {:>20} {:>4} {:>3} {:>3}  {eval:<12} {noise:>5} {:>9}",
         r.net,
-        format!("{}-{}", z.actor[0], z.actor[1]),
-        format!("{}-{}", z.critic[0], z.critic[1]),
+        net(z.actor, z.actor_blocks),
+        critic,
         z.batch,
         z.m,
         z.n,

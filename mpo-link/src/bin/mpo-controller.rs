@@ -27,6 +27,7 @@ fn main() -> ExitCode {
     }
 }
 
+// Long for its flag list (one `match` arm per flag) and the help text it refers to.
 fn run() -> Result<(), String> {
     let mut run = None;
     let mut profile = "hopper-256".to_string();

@@ -53,7 +53,12 @@ fn node(run: &RunId, name: &str) -> Result<Node<Svc>, LinkError> {
         .map_err(err("node"))
 }
 
-fn bytes_service(node: &Node<Svc>, run: &RunId, leaf: &str, up: bool) -> Result<Factory, LinkError> {
+fn bytes_service(
+    node: &Node<Svc>,
+    run: &RunId,
+    leaf: &str,
+    up: bool,
+) -> Result<Factory, LinkError> {
     let what = format!("the fleet's {leaf} service");
     let (publishers, subscribers, buffer) = match up {
         true => (MAX_LOCAL + 2, 2, UP_BUFFER),
@@ -71,7 +76,11 @@ fn bytes_service(node: &Node<Svc>, run: &RunId, leaf: &str, up: bool) -> Result<
         .map_err(err(&what))
 }
 
-fn event(node: &Node<Svc>, run: &RunId, leaf: &str) -> Result<iceoryx2::service::port_factory::event::PortFactory<Svc>, LinkError> {
+fn event(
+    node: &Node<Svc>,
+    run: &RunId,
+    leaf: &str,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<Svc>, LinkError> {
     node.service_builder(&service_name(run, leaf)?)
         .event()
         .max_notifiers(MAX_LOCAL + 4)

@@ -100,4 +100,14 @@ pub(crate) struct External {
     pub action_low: Vec<f64>,
     /// Per action dimension (or one for all): the upper bound.
     pub action_high: Vec<f64>,
+    /// The program that serves the plant and its arguments, run from the task file's folder
+    /// (a relative program path with a `/` is relative to it) with the run id in
+    /// `MPO_PLANT_RUN`; without it the plant program is started by hand and attached to
+    /// (`mpo train --attach-plant RUN_ID`). Documented in `docs/external-plant.md`.
+    pub command: Option<Vec<String>>,
+    /// Seconds the plant may take to answer one reset or step (default 10).
+    pub timeout: Option<f64>,
+    /// Seconds the plant may take to answer the handshake, its program's start-up included
+    /// (default 60).
+    pub connect_timeout: Option<f64>,
 }

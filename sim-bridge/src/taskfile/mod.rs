@@ -67,6 +67,23 @@ pub struct TaskDef {
     scale: Option<Vec<(f64, f64)>>,
     /// Per action dimension, `[low, high]` in the actuators' units.
     bounds: Vec<(f64, f64)>,
+    /// How an external plant is reached (None for MuJoCo).
+    external: Option<ExternalDef>,
+}
+
+/// How the learner reaches an external plant (a task file's `[external]` beyond the sizes;
+/// `docs/external-plant.md`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExternalDef {
+    /// `command`: the plant's program and its arguments (None: it is started by hand and
+    /// attached to).
+    pub command: Option<Vec<String>>,
+    /// The task file's folder, where the command runs.
+    pub dir: PathBuf,
+    /// `timeout`: seconds per reset or step.
+    pub timeout: f64,
+    /// `connect_timeout`: seconds for the handshake, the program's start-up included.
+    pub connect_timeout: f64,
 }
 
 /// The most numbers an observation may have (Gymnasium's Humanoid-v5 has 348).
@@ -173,7 +190,7 @@ impl TaskDef {
         }
         let description = toml.description.clone().unwrap_or_default();
         if toml.plant == PlantKind::External {
-            return Self::external(toml, name, description, origin, text, file);
+            return Self::external(toml, name, description, origin, text, (file, dir));
         }
         let parsed = plant::parse(&toml).map_err(|e| bad(file, &e.key, e.message))?;
         let model_key = toml.model.as_deref().ok_or_else(|| {
@@ -258,6 +275,7 @@ impl TaskDef {
             actuators,
             scale,
             bounds,
+            external: None,
         })
     }
 
@@ -267,7 +285,7 @@ impl TaskDef {
         description: String,
         origin: Origin,
         text: &str,
-        file: &str,
+        (file, dir): (&str, &Path),
     ) -> Result<Self, SimError> {
         let e = toml.external.clone().ok_or_else(|| {
             bad(
@@ -347,6 +365,27 @@ impl TaskDef {
                 format!("{episode_steps}: from 1 to 10^7"),
             ));
         }
+        let seconds = |v: Option<f64>, key: &str, default: f64| match v {
+            None => Ok(default),
+            Some(s) if s.is_finite() && s > 0.0 => Ok(s),
+            Some(s) => Err(bad(file, key, format!("{s}: a positive number of seconds"))),
+        };
+        if e.command
+            .as_ref()
+            .is_some_and(|c| c.is_empty() || c[0].is_empty())
+        {
+            return Err(bad(
+                file,
+                "external.command",
+                "empty: give the program and its arguments, e.g. [\"python3\", \"-m\", \"mpo_plant\", \"--gym\", \"Pendulum-v1\"]",
+            ));
+        }
+        let external = ExternalDef {
+            command: e.command.clone(),
+            dir: dir.to_path_buf(),
+            timeout: seconds(e.timeout, "external.timeout", 10.0)?,
+            connect_timeout: seconds(e.connect_timeout, "external.connect_timeout", 60.0)?,
+        };
         let control_timestep = toml.control_timestep.unwrap_or(0.0);
         if !(control_timestep.is_finite() && control_timestep >= 0.0) {
             return Err(bad(
@@ -377,6 +416,7 @@ impl TaskDef {
             actuators: Vec::new(),
             scale: None,
             bounds,
+            external: Some(external),
         })
     }
 
@@ -420,6 +460,16 @@ impl TaskDef {
     /// True for `plant = "external"` (another program steps it).
     pub fn is_external(&self) -> bool {
         self.toml.plant == PlantKind::External
+    }
+
+    /// How an external plant is reached (None for a task simulated here).
+    pub fn external_plant(&self) -> Option<&ExternalDef> {
+        self.external.as_ref()
+    }
+
+    /// The file's path for messages (`tasks/<name>.toml` for a built-in task).
+    pub fn file_label(&self) -> String {
+        self.display_file()
     }
 
     /// Per action dimension, its `[low, high]` in the plant's units (the policy acts in

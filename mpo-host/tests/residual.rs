@@ -1,0 +1,117 @@
+//! The residual networks and the categorical critic through the commands (the `tiny-simba`
+//! row of cartpole-balance): a run repeats its bits on one and two threads and after a
+//! resume, its checkpoint evaluates to the run's last evaluation, and its exported policy
+//! builds into the firmware, which answers with the host's actions bit for bit.
+
+mod common;
+use common::*;
+
+use std::path::Path;
+
+use mpo_core::rng::Rng;
+
+fn simba(dir: &Path, steps: u64, extra: &[&str]) -> serde_json::Value {
+    let steps = steps.to_string();
+    let mut args = vec![
+        "train",
+        "--task",
+        "cartpole-balance",
+        "--net",
+        "tiny-simba",
+        "--steps",
+        &steps,
+        "--no-progress",
+        "--out",
+        dir.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    ok_json(&mpo(&args))
+}
+
+#[test]
+fn a_residual_categorical_run_repeats_its_bits_on_any_thread_count_and_after_a_resume() {
+    let d = scratch("residual-bits");
+    let one = simba(&d.join("one"), 2000, &["--threads", "1"]);
+    let two = simba(&d.join("two"), 2000, &["--threads", "2"]);
+    assert_eq!(one["params_sha256"], two["params_sha256"]);
+    assert_eq!(one["eval_return_mean"], two["eval_return_mean"]);
+    let half = simba(&d.join("half"), 1000, &["--threads", "1"]);
+    assert_ne!(half["params_sha256"], one["params_sha256"]);
+    let resumed = ok_json(&mpo(&[
+        "train",
+        "--no-progress",
+        "--resume",
+        d.join("half").to_str().unwrap(),
+        "--steps",
+        "2000",
+    ]));
+    assert_eq!(resumed["params_sha256"], one["params_sha256"]);
+
+    let eval = ok_json(&mpo(&[
+        "eval",
+        "--checkpoint",
+        d.join("one").to_str().unwrap(),
+        "--episodes",
+        "3",
+    ]));
+    // The evaluation's episodes start from the run's evaluation seeds: the same returns.
+    assert_eq!(eval["return_mean"], one["eval_return_mean"]);
+}
+
+#[test]
+fn an_exported_residual_policy_runs_in_the_firmware_with_the_hosts_bits() {
+    let d = scratch("residual-export");
+    let run = d.join("run");
+    simba(&run, 2000, &["--threads", "1"]);
+    let out_dir = d.join("export");
+    let summary = ok_json(&mpo(&[
+        "export",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]));
+    assert_eq!(summary["blocks"], 1);
+    let policy = out_dir.join("policy.rs");
+    let src = std::fs::read_to_string(&policy).unwrap();
+    assert!(
+        src.contains("ResidualActor"),
+        "{}",
+        &src[..src.len().min(400)]
+    );
+
+    let build = mpo_integration::firmware::build(&policy, "", &d.join("firmware"));
+    assert!(
+        build.status.success(),
+        "firmware build failed:\n{}",
+        String::from_utf8_lossy(&build.stderr)
+    );
+    let bin = d.join("firmware/x86_64-unknown-linux-gnu/release/mpo-firmware");
+
+    // The host side: the checkpoint's policy as the inference commands load it.
+    let v = mpo_host::checkpoint::open(&run).unwrap();
+    let instance = mpo_host::registry::find(&v.meta.sizes).unwrap();
+    let host = (instance.policy)(&v).unwrap();
+
+    let mut rng = Rng::seed_from_u64(7);
+    let obs: Vec<[f32; 5]> = (0..300)
+        .map(|_| {
+            let mut o = [0f32; 5];
+            rng.fill_normal(&mut o);
+            o
+        })
+        .collect();
+    let stdout = mpo_integration::firmware::run(&bin, &obs);
+    assert_eq!(stdout.len(), obs.len() * 4);
+    for (k, (o, b)) in obs.iter().zip(stdout.chunks_exact(4)).enumerate() {
+        let mut want = [0f32; 1];
+        host.mean_action(o, &mut want);
+        let got = f32::from_le_bytes(b.try_into().unwrap());
+        assert_eq!(
+            got.to_bits(),
+            want[0].to_bits(),
+            "record {k}: {got} vs {}",
+            want[0]
+        );
+    }
+}
