@@ -264,7 +264,21 @@ impl<
         par: &Par,
         on_update: &mut dyn FnMut(&UpdateStats),
     ) -> Result<(), AgentError> {
-        self.replay.push(t);
+        let episode = self.replay.counters().current_episode;
+        self.observe_in(episode, t, par, on_update)
+    }
+
+    /// [`AgentOf::observe`] for a transition of episode `episode` (an id from
+    /// [`Replay::new_episode_id`]): a fleet's learner inserts the episodes of several plants
+    /// in turn. With the replay's current episode it is [`AgentOf::observe`], bit for bit.
+    pub fn observe_in<Par: Parallel>(
+        &mut self,
+        episode: u64,
+        t: &Transition<OBS, ACT>,
+        par: &Par,
+        on_update: &mut dyn FnMut(&UpdateStats),
+    ) -> Result<(), AgentError> {
+        self.replay.push_to(episode, t);
         self.env_steps += 1;
         if self.obs_norm_due() {
             let rows = &self.replay.raw().obs[..self.replay.len()];
@@ -282,7 +296,9 @@ impl<
 
     /// True when the observation normalisation is refit after this step: every
     /// `obs_norm_interval` steps from the end of the warm-up (so before the first update).
-    fn obs_norm_due(&self) -> bool {
+    /// After [`AgentOf::observe`]: true when that step refit it (the policy changed without an
+    /// update).
+    pub fn obs_norm_due(&self) -> bool {
         let every = self.learner.cfg.obs_norm_interval as u64;
         let warm = self.schedule.warmup_steps;
         every > 0 && self.env_steps >= warm && (self.env_steps - warm).is_multiple_of(every)
