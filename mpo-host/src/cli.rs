@@ -171,6 +171,10 @@ pub struct PlantWorkerArgs {
     /// Steps per block expected (sizes the first shared-memory segment).
     #[arg(long, value_name = "K", default_value_t = 50)]
     pub block_hint: usize,
+    /// Steps per second of wall clock, as a robot at its control rate [default: as fast as
+    /// the environment steps].
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<f64>,
 }
 
 /// `mpo tasks`.
@@ -316,6 +320,11 @@ pub struct TrainArgs {
     /// before it is dropped and training goes on without it.
     #[arg(long, value_name = "S", default_value_t = 30.0, requires = "plants")]
     pub plant_timeout: f64,
+    /// With --plants: each plant steps at most HZ steps per second of wall clock, as a robot
+    /// at its control rate (simulated plants otherwise step as fast as they can, which with
+    /// the free schedule takes the learner's CPU) [default: unpaced].
+    #[arg(long, value_name = "HZ", requires = "plants")]
+    pub plant_rate: Option<f64>,
 }
 
 /// `mpo render`.

@@ -23,6 +23,7 @@ pub fn plant_worker(args: &crate::cli::PlantWorkerArgs) -> Result<u64, Error> {
         net: &args.net,
         sizes: row.sizes,
         block_hint: args.block_hint,
+        rate: args.rate,
         spawned: true,
     };
     (instance.plant)(&init).map_err(Error::Plant)

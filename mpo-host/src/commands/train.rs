@@ -95,6 +95,11 @@ fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>,
             "--plants and --controller: a fleet's plants act with their own copy of the policy",
         ));
     }
+    if let Some(r) = args.plant_rate
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(invalid("--plant-rate must be positive"));
+    }
     if !(args.plant_timeout.is_finite() && args.plant_timeout > 0.0) {
         return Err(invalid("--plant-timeout must be positive"));
     }
@@ -105,6 +110,7 @@ fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>,
             .ok_or_else(|| invalid("--schedule: deterministic or free"))?,
         timeout: Duration::from_secs_f64(args.plant_timeout),
         max_lag: crate::fleet::DEFAULT_MAX_LAG,
+        rate: args.plant_rate,
     }))
 }
 

@@ -143,6 +143,12 @@ impl Fleet {
                 &index.to_string(),
             ])
             .args(["--block-hint", &self.opts.sync_every.to_string()])
+            .args(
+                self.opts
+                    .rate
+                    .iter()
+                    .flat_map(|r| ["--rate".to_string(), r.to_string()]),
+            )
             .args(task)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -534,12 +540,13 @@ impl Fleet {
         Some((head, records))
     }
 
-    /// True where an evaluation or checkpoint may be taken: with one plant, between its
-    /// episodes (as in-process); with several, at any round's end (their episodes are not in
-    /// step; the Control Suite's 1000-step episodes with K dividing 1000 end together anyway).
+    /// True where an evaluation or checkpoint may be taken: with one plant in rounds, between
+    /// its episodes (as in-process); with several, at any round's end (their episodes are not
+    /// in step; the Control Suite's 1000-step episodes with K dividing 1000 end together
+    /// anyway); free-running, always (the plants keep their episodes going meanwhile).
     pub fn at_boundary(&self) -> bool {
-        match self.members.len() {
-            1 => self.members[0].at_boundary,
+        match (self.opts.schedule, self.members.len()) {
+            (FleetSchedule::Deterministic, 1) => self.members[0].at_boundary,
             _ => true,
         }
     }

@@ -74,6 +74,9 @@ pub struct FleetOptions {
     /// Free schedule: a block acted with a policy more than this many versions older than
     /// the learner's newest is dropped (counted), not inserted.
     pub max_lag: u64,
+    /// Each plant's steps per second of wall clock (a robot's control rate); `None`: as fast
+    /// as it steps.
+    pub rate: Option<f64>,
 }
 
 /// Default steps per block: 50 divides the Control Suite's 1000-step episodes, so every

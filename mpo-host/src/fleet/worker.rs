@@ -45,6 +45,8 @@ pub struct WorkerInit<'a> {
     pub block_hint: usize,
     /// Started by the learner (it exits when its parent does).
     pub spawned: bool,
+    /// Steps per second of wall clock (`None`: unpaced).
+    pub rate: Option<f64>,
 }
 
 /// How long a plant waits for the learner's answer to its HELLO, or for a round.
@@ -129,6 +131,9 @@ struct Stepper<const OBS: usize, const ACT: usize> {
     /// The block's records (little-endian words).
     records: Vec<u8>,
     count: u32,
+    /// Pacing: the period and the time of the next step.
+    period: Option<Duration>,
+    next_at: Instant,
 }
 
 impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
@@ -138,6 +143,14 @@ impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
         policy: &P,
         warm: bool,
     ) -> Result<(), String> {
+        if let Some(p) = self.period {
+            // A robot's clock: an absolute schedule, so lateness does not accumulate.
+            let now = Instant::now();
+            if self.next_at > now {
+                std::thread::sleep(self.next_at - now);
+            }
+            self.next_at = self.next_at.max(now.checked_sub(p).unwrap_or(now)) + p;
+        }
         let mut flags = 0u32;
         if !self.in_episode {
             self.env.reset(&mut self.obs64);
@@ -303,6 +316,8 @@ where
         action_penalty: w.action_penalty,
         records: Vec::with_capacity(4 * k * frames::record_words(OBS, ACT)),
         count: 0,
+        period: init.rate.map(|r| Duration::from_secs_f64(1.0 / r)),
+        next_at: Instant::now(),
     };
     wire.buf = Vec::with_capacity(frames::block_len(OBS, ACT, k));
     let r = match w.mode {
