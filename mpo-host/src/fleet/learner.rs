@@ -72,11 +72,15 @@ impl Fleet {
     /// Opens the learner's side of a fresh run id for plants of `identity`; `welcome` is the
     /// template of every plant's WELCOME (its per-plant fields are filled at admission).
     pub fn open(
-        opts: FleetOptions,
+        mut opts: FleetOptions,
         identity: Identity,
         welcome: Welcome,
         seed: u32,
     ) -> Result<Self, FleetError> {
+        if let Some(r) = opts.rate {
+            // A paced plant needs K periods for a block: that is not silence.
+            opts.timeout += Duration::from_secs_f64(opts.sync_every as f64 / r);
+        }
         let run = RunId::new();
         let port = IpcLearner::open(&run)?;
         let report = FleetReport {

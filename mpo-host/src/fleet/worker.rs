@@ -49,7 +49,8 @@ pub struct WorkerInit<'a> {
     pub rate: Option<f64>,
 }
 
-/// How long a plant waits for the learner's answer to its HELLO, or for a round.
+/// How long a plant started by hand waits for the learner's answer to its HELLO, or for a
+/// round.
 const PATIENCE: Duration = Duration::from_secs(120);
 
 /// What the learner says between blocks.
@@ -246,6 +247,16 @@ fn orphaned(spawned: bool, parent: i32) -> bool {
     spawned && unsafe { libc::getppid() } != parent
 }
 
+/// True when the learner is gone: a plant the learner started was re-parented (its
+/// learner exited); one started by hand heard nothing for [`PATIENCE`]. (A started plant
+/// never times out while its learner lives: evaluations or a render may keep it busy.)
+fn gone<P: Params>(inbox: &Inbox<P>, spawned: bool, parent: i32) -> bool {
+    match spawned {
+        true => orphaned(spawned, parent),
+        false => inbox.heard.elapsed() > PATIENCE,
+    }
+}
+
 /// Runs plant `init.index` of the run with the policy type `P` until the learner stops it;
 /// returns the steps taken. A refusal or a failed environment is an error (after a BYE).
 pub fn run<const OBS: usize, const ACT: usize, const TRI: usize, P>(
@@ -289,7 +300,7 @@ where
             Some(Err(why)) => return Err(format!("the learner refused this plant: {why}")),
             None => {}
         }
-        if inbox.heard.elapsed() > PATIENCE || orphaned(init.spawned, parent) {
+        if gone(&inbox, init.spawned, parent) {
             return Err(format!("no learner of run {} answered", init.run.as_str()));
         }
         wire.port.wait(Duration::from_millis(50));
@@ -381,7 +392,7 @@ where
             .go
             .filter(|g| g.round >= next_round && g.version == inbox.version);
         let Some(go) = ready else {
-            if inbox.heard.elapsed() > PATIENCE || orphaned(spawned, parent) {
+            if gone(inbox, spawned, parent) {
                 return Err("the learner went silent".into());
             }
             wire.port.wait(Duration::from_millis(50));
@@ -424,7 +435,7 @@ where
         if inbox.stop.is_some() {
             return Ok(steps);
         }
-        if inbox.heard.elapsed() > PATIENCE || orphaned(spawned, parent) {
+        if gone(inbox, spawned, parent) {
             return Err("the learner went silent".into());
         }
         wire.port.wait(Duration::from_millis(50));
