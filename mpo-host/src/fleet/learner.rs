@@ -37,6 +37,8 @@ pub struct Member {
     pub at_boundary: bool,
     /// Its block counter: the next block expected (free: gaps are lost blocks).
     next_block: u64,
+    /// The newest policy version it reported acting with (its latency is counted once).
+    seen_version: u64,
     /// When the learner last heard from it.
     heard: Instant,
 }
@@ -63,6 +65,8 @@ pub struct Fleet {
     spare: Vec<Vec<u8>>,
     report: FleetReport,
     lag_sum: u64,
+    /// Parameter latencies reported (one per plant and version): count, sum, largest (ns).
+    latency: (u64, u64, u64),
     events: Vec<String>,
     /// The first refusal while the fleet is starting (it fails the start).
     refused: Option<FleetError>,
@@ -102,6 +106,7 @@ impl Fleet {
                 episode: 0,
                 at_boundary: true,
                 next_block: 0,
+                seen_version: 0,
                 heard: Instant::now(),
             })
             .collect();
@@ -123,6 +128,7 @@ impl Fleet {
             spare: Vec::new(),
             report,
             lag_sum: 0,
+            latency: (0, 0, 0),
             events: Vec::new(),
             refused: None,
         })
@@ -532,6 +538,15 @@ impl Fleet {
         }
         m.next_block = head.round + 1;
         m.at_boundary = head.flags & AT_BOUNDARY != 0;
+        if head.version > m.seen_version && head.param_latency_ns > 0 {
+            m.seen_version = head.version;
+            let l = &mut self.latency;
+            *l = (
+                l.0 + 1,
+                l.1 + head.param_latency_ns,
+                l.2.max(head.param_latency_ns),
+            );
+        }
         let lag = self.version.saturating_sub(head.version);
         if self.opts.schedule == FleetSchedule::Free && lag > self.opts.max_lag {
             self.report.stale_blocks += 1;
@@ -567,6 +582,11 @@ impl Fleet {
             0 => 0.0,
             b => self.lag_sum as f64 / b as f64,
         };
+        let (n, sum, max) = self.latency;
+        if n > 0 {
+            r.param_latency_us_mean = sum as f64 / n as f64 / 1e3;
+            r.param_latency_us_max = max as f64 / 1e3;
+        }
         r
     }
 

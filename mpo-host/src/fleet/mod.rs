@@ -219,6 +219,11 @@ pub struct FleetReport {
     pub lag_mean: f64,
     /// Largest lag inserted.
     pub lag_max: u64,
+    /// Mean latency of a parameter update (from the learner's send of a version's last block
+    /// to the plant having assembled it), over plants and versions, microseconds.
+    pub param_latency_us_mean: f64,
+    /// Its largest value.
+    pub param_latency_us_max: f64,
     /// Frames of other runs or protocols ignored.
     pub ignored_frames: u64,
 }

@@ -66,6 +66,9 @@ struct Inbox<P: Params> {
     welcome: Option<Result<Welcome, String>>,
     stop: Option<String>,
     heard: Instant,
+    /// The newest version's latency: from the learner's send of its last block to this
+    /// plant having it assembled and in use (ns, `CLOCK_MONOTONIC` of both processes).
+    latency_ns: u64,
 }
 
 impl<P: Params> Inbox<P> {
@@ -84,6 +87,7 @@ impl<P: Params> Inbox<P> {
                 {
                     self.asm.swap_into(&mut self.policy);
                     self.version = self.asm.generation();
+                    self.latency_ns = mpo_link::service::monotonic_ns().saturating_sub(h.t_send_ns);
                 }
             }
             GO => {
@@ -118,8 +122,9 @@ impl<P: Params> Inbox<P> {
     }
 }
 
-/// The environment, the exploration state and the block being filled.
-struct Stepper<const OBS: usize, const ACT: usize> {
+/// A plant's environment, its exploration state and the block being filled: the step path
+/// (public for the allocation test, `mpo-host/tests/no_alloc.rs`).
+pub struct Stepper<const OBS: usize, const ACT: usize> {
     env: Box<dyn Environment>,
     explore: Box<Explorer<ACT>>,
     obs64: [f64; OBS],
@@ -138,8 +143,49 @@ struct Stepper<const OBS: usize, const ACT: usize> {
 }
 
 impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
+    /// A plant of `task` as `w` configures it (environment seed, collector stream, noise,
+    /// std floor, action penalty, K), unpaced at `rate` `None`.
+    pub fn new(task: &TaskDef, w: &Welcome, rate: Option<f64>) -> Result<Self, String> {
+        let k = w.block.max(1) as usize;
+        let env = crate::plant::make(task, w.env_seed).map_err(|e| e.to_string())?;
+        let mut explore: Box<Explorer<ACT>> = bytemuck::zeroed_box();
+        explore.init(
+            w.collector,
+            NoiseKind {
+                corr: w.noise_corr,
+                pink: w.noise_pink != 0,
+            },
+        );
+        Ok(Self {
+            env,
+            explore,
+            obs64: [0.0; OBS],
+            next64: [0.0; OBS],
+            act64: [0.0; ACT],
+            in_episode: false,
+            episodes: 0,
+            std_floor: w.std_floor,
+            action_penalty: w.action_penalty,
+            records: Vec::with_capacity(4 * k * frames::record_words(OBS, ACT)),
+            count: 0,
+            period: rate.map(|r| Duration::from_secs_f64(1.0 / r)),
+            next_at: Instant::now(),
+        })
+    }
+
+    /// Records in the block being filled.
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// Empties the block (after it was sent).
+    pub fn clear_block(&mut self) {
+        self.records.clear();
+        self.count = 0;
+    }
+
     /// One step with `policy` (uniform while `warm`), its record appended to the block.
-    fn step<const TRI: usize, P: PolicyNet<OBS, ACT, TRI>>(
+    pub fn step<const TRI: usize, P: PolicyNet<OBS, ACT, TRI>>(
         &mut self,
         policy: &P,
         warm: bool,
@@ -285,6 +331,7 @@ where
         welcome: None,
         stop: None,
         heard: Instant::now(),
+        latency_ns: 0,
     };
     let hello = Hello {
         id: super::identity(init.task, init.net, &init.sizes, inbox.policy.len()),
@@ -306,30 +353,7 @@ where
         wire.port.wait(Duration::from_millis(50));
     };
     let k = w.block.max(1) as usize;
-    let env = crate::plant::make(init.task, w.env_seed).map_err(|e| e.to_string())?;
-    let mut explore: Box<Explorer<ACT>> = bytemuck::zeroed_box();
-    explore.init(
-        w.collector,
-        NoiseKind {
-            corr: w.noise_corr,
-            pink: w.noise_pink != 0,
-        },
-    );
-    let mut s = Stepper::<OBS, ACT> {
-        env,
-        explore,
-        obs64: [0.0; OBS],
-        next64: [0.0; OBS],
-        act64: [0.0; ACT],
-        in_episode: false,
-        episodes: 0,
-        std_floor: w.std_floor,
-        action_penalty: w.action_penalty,
-        records: Vec::with_capacity(4 * k * frames::record_words(OBS, ACT)),
-        count: 0,
-        period: init.rate.map(|r| Duration::from_secs_f64(1.0 / r)),
-        next_at: Instant::now(),
-    };
+    let mut s = Stepper::<OBS, ACT>::new(init.task, &w, init.rate)?;
     wire.buf = Vec::with_capacity(frames::block_len(OBS, ACT, k));
     let r = match w.mode {
         0 => rounds::<OBS, ACT, TRI, P>(&mut wire, &mut inbox, &mut s, &w, init.spawned, parent),
@@ -348,22 +372,21 @@ fn send_block<const OBS: usize, const ACT: usize>(
     wire: &mut Wire,
     s: &mut Stepper<OBS, ACT>,
     round: u64,
-    version: u64,
+    (version, latency_ns): (u64, u64),
 ) -> Result<(), String> {
     let head = BlockHead {
         round,
         version,
         episodes: s.episodes,
         collector: s.explore.collector,
-        param_latency_ns: 0,
+        param_latency_ns: latency_ns,
         count: s.count,
         obs: OBS as u32,
         act: ACT as u32,
         flags: if s.in_episode { 0 } else { AT_BOUNDARY },
     };
     let r = wire.send(BLOCK, &head, &s.records);
-    s.records.clear();
-    s.count = 0;
+    s.clear_block();
     r
 }
 
@@ -410,7 +433,7 @@ where
             s.step::<TRI, P>(&inbox.policy, base + j < w.warmup_steps)?;
         }
         steps += k;
-        send_block(wire, s, go.round, inbox.version)?;
+        send_block(wire, s, go.round, (inbox.version, inbox.latency_ns))?;
     }
 }
 
@@ -452,7 +475,7 @@ where
             s.step::<TRI, P>(&inbox.policy, learner_steps < w.warmup_steps)?;
             steps += 1;
         }
-        send_block(wire, s, block, inbox.version)?;
+        send_block(wire, s, block, (inbox.version, inbox.latency_ns))?;
         block += 1;
         wire.drain(inbox, steps)?;
         if inbox.stop.is_some() {
