@@ -15,6 +15,7 @@ use bytemuck::Zeroable;
 use crate::actor::Actor;
 use crate::config::{ConfigError, MpoConfig};
 use crate::critic::Critic;
+use crate::explore::{Explorer, NoiseKind};
 use crate::learner::{LearnerOf, UpdateError, UpdateStats};
 use crate::network::{PolicyTrain, ValueNet};
 use crate::parallel::Parallel;
@@ -55,9 +56,17 @@ pub struct AgentSchedule {
     pub noise_pink: bool,
 }
 
-/// Rows of the pink noise generator: its spectrum is `1/f` out to `2^10 = 1024` steps, past
-/// a Control Suite episode's 1000.
-pub const PINK_OCTAVES: usize = 10;
+pub use crate::explore::PINK_OCTAVES;
+
+impl AgentSchedule {
+    /// The exploration noise this schedule asks for.
+    pub fn noise_kind(&self) -> NoiseKind {
+        NoiseKind {
+            corr: self.noise_corr,
+            pink: self.noise_pink,
+        }
+    }
+}
 
 /// Why a step of learning failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -101,22 +110,14 @@ pub struct AgentOf<
     pub learner: LearnerOf<OBS, ACT, TRI, P, Q, BC, C, L, M, N>,
     /// Experience.
     pub replay: Replay<CAP, OBS, ACT>,
-    /// State of the collector's stream (warm-up actions and exploration noise).
-    pub collector: [u8; 32],
+    /// The collector's stream (warm-up actions and exploration noise) and the noise's state.
+    pub explore: Explorer<ACT>,
     /// State of the sampler's stream (batch indices).
     pub sampler: [u8; 32],
     /// Environment steps observed.
     pub env_steps: u64,
     /// The schedule.
     pub schedule: AgentSchedule,
-    /// The last standard-normal exploration draw of this episode (for correlated noise).
-    pub noise: [f32; ACT],
-    /// True once [`AgentOf::noise`] holds a draw of the current episode.
-    pub noise_live: bool,
-    /// The pink noise generator's rows (row `k` redrawn every `2^k` steps of an episode).
-    pub pink: [[f32; ACT]; PINK_OCTAVES],
-    /// Draws made this episode by the pink noise generator (its clock).
-    pub pink_step: u32,
 }
 
 /// The agent with the two-layer MLPs (actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`).
@@ -198,14 +199,11 @@ impl<
         self.learner.init(cfg, seed)?;
         self.replay.clear();
         let mut root = Rng::seed_from_u64(stream_seed);
-        self.collector = root.split().state();
+        let collector = root.split().state();
+        self.explore.init(collector, schedule.noise_kind());
         self.sampler = root.split().state();
         self.env_steps = 0;
         self.schedule = schedule;
-        self.noise = [0.0; ACT];
-        self.noise_live = false;
-        self.pink = [[0.0; ACT]; PINK_OCTAVES];
-        self.pink_step = 0;
         Ok(())
     }
 
@@ -219,12 +217,7 @@ impl<
     /// from [`AgentOf::draw_noise`]; for correlated noise the density is the marginal one).
     pub fn act(&mut self, obs: &[f32; OBS], action: &mut [f32; ACT]) -> f32 {
         if self.in_warmup() {
-            let mut rng = Rng::from_state(self.collector);
-            for a in action.iter_mut() {
-                *a = rng.uniform_range(-1.0, 1.0);
-            }
-            self.collector = rng.state();
-            return -(ACT as f32) * core::f32::consts::LN_2;
+            return self.explore.uniform_action(action);
         }
         let mut z = [0f32; ACT];
         self.draw_noise(&mut z);
@@ -237,54 +230,14 @@ impl<
     /// `noise_pink` the pink generator's next value. Also for a policy evaluated elsewhere (a
     /// controller process) with the same bits.
     pub fn draw_noise(&mut self, z: &mut [f32; ACT]) {
-        let mut rng = Rng::from_state(self.collector);
-        if self.schedule.noise_pink {
-            self.draw_pink(&mut rng, z);
-            self.collector = rng.state();
-            return;
-        }
-        rng.fill_normal(z);
-        self.collector = rng.state();
-        let beta = self.schedule.noise_corr;
-        if beta > 0.0 {
-            if self.noise_live {
-                let fresh = libm::sqrtf(1.0 - beta * beta);
-                for (x, p) in z.iter_mut().zip(&self.noise) {
-                    *x = beta * p + fresh * *x;
-                }
-            }
-            self.noise = *z;
-            self.noise_live = true;
-        }
-    }
-
-    /// Voss's pink generator: at the episode's step `t`, row `k` is redrawn when `2^k`
-    /// divides `t` (all rows at `t = 0`, row 0 at every step), and `z` is the rows' sum over
-    /// `sqrt(PINK_OCTAVES)`.
-    fn draw_pink(&mut self, rng: &mut Rng, z: &mut [f32; ACT]) {
-        if !self.noise_live {
-            self.pink_step = 0;
-            self.noise_live = true;
-        }
-        let t = self.pink_step;
-        for (k, row) in self.pink.iter_mut().enumerate() {
-            if t & ((1u32 << k) - 1) == 0 {
-                rng.fill_normal(row);
-            }
-        }
-        self.pink_step = t.wrapping_add(1);
-        let scale = 1.0 / libm::sqrtf(PINK_OCTAVES as f32);
-        for (i, x) in z.iter_mut().enumerate() {
-            let sum: f32 = self.pink.iter().map(|row| row[i]).sum();
-            *x = sum * scale;
-        }
+        self.explore.draw_noise(z);
     }
 
     /// Marks the start of an episode (later transitions never join a sequence with earlier
     /// ones).
     pub fn begin_episode(&mut self) {
         self.replay.begin_episode();
-        self.noise_live = false;
+        self.explore.begin_episode();
     }
 
     /// How the replay's batches are drawn for this configuration.
@@ -311,7 +264,21 @@ impl<
         par: &Par,
         on_update: &mut dyn FnMut(&UpdateStats),
     ) -> Result<(), AgentError> {
-        self.replay.push(t);
+        let episode = self.replay.counters().current_episode;
+        self.observe_in(episode, t, par, on_update)
+    }
+
+    /// [`AgentOf::observe`] for a transition of episode `episode` (an id from
+    /// [`Replay::new_episode_id`]): a fleet's learner inserts the episodes of several plants
+    /// in turn. With the replay's current episode it is [`AgentOf::observe`], bit for bit.
+    pub fn observe_in<Par: Parallel>(
+        &mut self,
+        episode: u64,
+        t: &Transition<OBS, ACT>,
+        par: &Par,
+        on_update: &mut dyn FnMut(&UpdateStats),
+    ) -> Result<(), AgentError> {
+        self.replay.push_to(episode, t);
         self.env_steps += 1;
         if self.obs_norm_due() {
             let rows = &self.replay.raw().obs[..self.replay.len()];
@@ -329,7 +296,9 @@ impl<
 
     /// True when the observation normalisation is refit after this step: every
     /// `obs_norm_interval` steps from the end of the warm-up (so before the first update).
-    fn obs_norm_due(&self) -> bool {
+    /// After [`AgentOf::observe`]: true when that step refit it (the policy changed without an
+    /// update).
+    pub fn obs_norm_due(&self) -> bool {
         let every = self.learner.cfg.obs_norm_interval as u64;
         let warm = self.schedule.warmup_steps;
         every > 0 && self.env_steps >= warm && (self.env_steps - warm).is_multiple_of(every)

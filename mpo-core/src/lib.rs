@@ -53,6 +53,7 @@ pub mod critic;
 pub mod estep;
 #[cfg(feature = "train")]
 pub mod evaluation;
+pub mod explore;
 pub mod export;
 pub mod gaussian;
 pub mod layer_norm;

@@ -3,6 +3,13 @@
 //! Stored column-wise (one array per field) so a batch gather reads contiguous rows. Each
 //! transition carries the id of its episode, so fixed-length sequences for Retrace are drawn
 //! only from consecutive transitions of one episode.
+//!
+//! **Interleaved episodes.** A fleet of plants inserts the blocks of several episodes in turn
+//! ([`Replay::push_to`] with one episode id per plant's episode): then the transition after
+//! another of the same episode is not necessarily in the next slot. With
+//! [`Replay::set_interleave`] the n-step fold looks up to that many slots past each
+//! transition for the next one of its episode, skipping the others; 0 (the default, one
+//! plant) is the contiguous fold, bit for bit.
 
 use bytemuck::Zeroable;
 
@@ -68,6 +75,8 @@ pub struct Replay<const CAP: usize, const OBS: usize, const ACT: usize> {
     inserted: u64,
     /// Id of the current episode.
     current_episode: u64,
+    /// Slots the n-step fold may skip between two transitions of one episode (0: contiguous).
+    interleave: u64,
 }
 
 /// The ring's bookkeeping (see [`Replay::raw`]).
@@ -192,6 +201,27 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
 
     /// Appends a transition to the current episode.
     pub fn push(&mut self, t: &Transition<OBS, ACT>) {
+        self.push_to(self.current_episode, t);
+    }
+
+    /// A fresh episode id for [`Replay::push_to`] (the counter [`Replay::begin_episode`]
+    /// advances, so ids never repeat within the ring, whichever way they are drawn).
+    pub fn new_episode_id(&mut self) -> u64 {
+        self.current_episode += 1;
+        self.current_episode
+    }
+
+    /// How many slots of other episodes the n-step fold may skip between two transitions of
+    /// one episode: 0 for one stream of episodes (contiguous), about `(plants - 1) * block`
+    /// for a fleet whose plants insert blocks of `block` transitions in turn. A transition
+    /// whose successor lies further away folds fewer steps (a valid, shorter target).
+    pub fn set_interleave(&mut self, slots: u64) {
+        self.interleave = slots;
+    }
+
+    /// Appends a transition to the episode `episode` (an id from [`Replay::new_episode_id`]):
+    /// for several episodes inserted in turn.
+    pub fn push_to(&mut self, episode: u64, t: &Transition<OBS, ACT>) {
         let i = self.head as usize;
         self.obs[i] = t.obs;
         self.action[i] = t.action;
@@ -199,7 +229,7 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
         self.reward[i] = t.reward;
         self.discount[i] = t.discount;
         self.behaviour_log_prob[i] = t.behaviour_log_prob;
-        self.episode[i] = self.current_episode;
+        self.episode[i] = episode;
         self.head = (self.head + 1) % CAP as u64;
         self.len = (self.len + 1).min(CAP as u64);
         self.inserted += 1;
@@ -303,15 +333,34 @@ impl<const CAP: usize, const OBS: usize, const ACT: usize> Replay<CAP, OBS, ACT>
         let mut discounts = [0f32; MAX_NSTEP];
         let mut m = 0;
         let mut last = first;
-        while m < steps.min(MAX_NSTEP) && k + m < self.len() {
-            let i = self.slot(k + m);
-            if self.episode[i] != self.episode[first] {
-                break;
+        if self.interleave == 0 {
+            while m < steps.min(MAX_NSTEP) && k + m < self.len() {
+                let i = self.slot(k + m);
+                if self.episode[i] != self.episode[first] {
+                    break;
+                }
+                rewards[m] = self.reward[i];
+                discounts[m] = self.discount[i];
+                last = i;
+                m += 1;
             }
-            rewards[m] = self.reward[i];
-            discounts[m] = self.discount[i];
-            last = i;
-            m += 1;
+        } else {
+            // The episode's transitions in insertion order, others' skipped: at most
+            // `interleave` foreign slots between two of them.
+            let (mut j, mut gap) = (k, 0u64);
+            while m < steps.min(MAX_NSTEP) && j < self.len() && gap <= self.interleave {
+                let i = self.slot(j);
+                if self.episode[i] == self.episode[first] {
+                    rewards[m] = self.reward[i];
+                    discounts[m] = self.discount[i];
+                    last = i;
+                    m += 1;
+                    gap = 0;
+                } else {
+                    gap += 1;
+                }
+                j += 1;
+            }
         }
         let (r, b) = crate::evaluation::nstep(&rewards[..m], &discounts[..m], gamma);
         chunk.obs[0][n] = self.obs[first];
@@ -588,6 +637,52 @@ mod tests {
                 );
                 assert_eq!(ch.action[0][row], stored[k].0.action);
                 assert_eq!(ch.behaviour_log_prob[0][row], -x);
+            }
+        }
+    }
+
+    /// Two episodes inserted in blocks of two (a fleet of two plants): with the interleave
+    /// set to the other plant's block, every n-step row folds exactly its own episode's
+    /// successors, as if the episode had been stored alone; without it the fold stops at the
+    /// first foreign slot.
+    #[test]
+    fn interleaved_episodes_fold_their_own_successors() {
+        let mut r: Box<Replay<64, 2, 1>> = bytemuck::zeroed_box();
+        let (a, b) = (r.new_episode_id(), r.new_episode_id());
+        let mut eps: [std::vec::Vec<Transition<2, 1>>; 2] = Default::default();
+        for blk in 0..10 {
+            for (e, id) in [(0usize, a), (1, b)] {
+                for j in 0..2 {
+                    let x = (100 * e + 2 * blk + j) as f32;
+                    let mut tr = t(x);
+                    tr.reward = 0.5 + x * 0.01;
+                    r.push_to(id, &tr);
+                    eps[e].push(tr);
+                }
+            }
+        }
+        for (interleave, whole) in [(2u64, true), (0, false)] {
+            r.set_interleave(interleave);
+            let mut c = chunks::<40>();
+            let mode = BatchMode::OneStep { n: 5, gamma: 0.9 };
+            r.fill_batch(&mut Rng::seed_from_u64(5), &mut c[..], mode)
+                .unwrap();
+            for n in 0..8 * 40 {
+                let (ch, row) = (&c[n / 8], n % 8);
+                let x = ch.obs[0][row][0];
+                let e = usize::from(x >= 100.0);
+                let k = eps[e].iter().position(|s| s.obs[0] == x).unwrap();
+                // Contiguous fold stops at the block's end; the interleaved one goes on.
+                let end = if whole { eps[e].len() } else { (k / 2) * 2 + 2 };
+                let (mut ret, mut mult, mut last) = (0f32, 1f32, k);
+                for j in k..(k + 5).min(end) {
+                    ret += mult * eps[e][j].reward;
+                    mult *= 0.9 * eps[e][j].discount;
+                    last = j;
+                }
+                assert!((ch.reward[0][row] - ret).abs() < 1e-5, "row {n}: x {x}");
+                assert!((ch.bootstrap[0][row] - mult).abs() < 1e-6, "row {n}");
+                assert_eq!(ch.next_obs[0][row], eps[e][last].next_obs, "row {n}");
             }
         }
     }

@@ -44,7 +44,7 @@ fn agent_with(
 #[test]
 fn independent_noise_is_sample_action_bit_for_bit() {
     let mut a = agent(0.0, MpoConfig::REPORT).unwrap();
-    let mut rng = Rng::from_state(a.collector);
+    let mut rng = Rng::from_state(a.explore.collector);
     let mut obs_rng = Rng::seed_from_u64(3);
     a.begin_episode();
     for _ in 0..200 {
@@ -71,7 +71,7 @@ fn correlated_noise_is_standard_normal_with_lag_one_correlation_beta() {
     for _ in 0..400 {
         a.begin_episode();
         let mut fresh = [0f32; ACT];
-        Rng::from_state(a.collector).fill_normal(&mut fresh);
+        Rng::from_state(a.explore.collector).fill_normal(&mut fresh);
         let mut prev = [0f32; ACT];
         for t in 0..500 {
             let mut z = [0f32; ACT];
@@ -167,7 +167,7 @@ fn pink_noise_is_standard_normal_with_the_correlation_of_voss_generator() {
     let mut episode = vec![[0f32; ACT]; LEN];
     for _ in 0..600 {
         a.begin_episode();
-        let mut rng = Rng::from_state(a.collector);
+        let mut rng = Rng::from_state(a.explore.collector);
         let mut rows = [[0f32; ACT]; PINK_OCTAVES];
         for row in rows.iter_mut() {
             rng.fill_normal(row);

@@ -115,6 +115,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let _ = writeln!(std::io::stdout(), "{stats}");
             Ok(ExitCode::SUCCESS)
         }
+        Command::PlantWorker(args) => {
+            commands::plant_worker(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Eval(args) => {
             println!("{}", serde_json::to_string(&commands::eval(&args)?)?);
             Ok(ExitCode::SUCCESS)

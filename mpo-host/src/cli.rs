@@ -16,6 +16,8 @@ pub struct Cli {
 }
 
 /// Subcommands.
+// One value per process, parsed once: the size of the largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Train a policy: collect with the sampled policy, learn, evaluate, checkpoint.
@@ -64,6 +66,10 @@ pub enum Command {
     /// parameters. Prints `ready` once listening and a `stats ...` line on exit (SIGINT or
     /// SIGTERM).
     Controller(ControllerArgs),
+    /// A plant of a fleet (started by `mpo train --plants N`; docs/fleet.md): joins the run,
+    /// steps its own environment with the policy it last received and sends its transitions.
+    #[command(hide = true)]
+    PlantWorker(PlantWorkerArgs),
 }
 
 impl Command {
@@ -142,6 +148,33 @@ pub struct ControllerArgs {
     /// SCHED_FIFO priority (1-99); not with busy-poll.
     #[arg(long, value_name = "PRIO")]
     pub realtime: Option<i32>,
+}
+
+/// `mpo plant-worker` (hidden: `mpo train --plants` starts it).
+#[derive(Debug, Args)]
+pub struct PlantWorkerArgs {
+    /// The run to join (the learner's fleet run id).
+    #[arg(long, value_name = "RUN_ID")]
+    pub run: String,
+    /// This plant's index in the fleet (0-based; its seeds derive from it).
+    #[arg(long, value_name = "I")]
+    pub index: usize,
+    /// Built-in task.
+    #[arg(long, default_value = crate::table::DEFAULT_TASK, conflicts_with = "task_file")]
+    pub task: String,
+    /// A task file instead of a built-in task.
+    #[arg(long, value_name = "FILE.toml")]
+    pub task_file: Option<PathBuf>,
+    /// Network variant of the task's row.
+    #[arg(long, default_value = crate::table::DEFAULT_NET)]
+    pub net: String,
+    /// Steps per block expected (sizes the first shared-memory segment).
+    #[arg(long, value_name = "K", default_value_t = 50)]
+    pub block_hint: usize,
+    /// Steps per second of wall clock, as a robot at its control rate [default: as fast as
+    /// the environment steps].
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<f64>,
 }
 
 /// `mpo tasks`.
@@ -269,6 +302,29 @@ pub struct TrainArgs {
     /// An external plant's program.
     #[command(flatten)]
     pub plant: crate::plant::PlantArgs,
+    /// Collect with N plant processes (each stepping its own copy of the task's environment
+    /// with the policy it last received) instead of in this process; the learner stays here
+    /// and keeps the row's updates per inserted transition (docs/fleet.md).
+    #[arg(long, value_name = "N", conflicts_with_all = ["device", "resume"])]
+    pub plants: Option<usize>,
+    /// With --plants: steps per block; a plant sends its transitions and receives the newest
+    /// parameters every K steps [default: 50].
+    #[arg(long, value_name = "K", requires = "plants")]
+    pub sync_every: Option<u32>,
+    /// With --plants: `deterministic` (rounds in a fixed order: the same seed gives the same
+    /// bits; one plant with --sync-every 1 is the in-process run) or `free` (plants never
+    /// wait; faster, not reproducible).
+    #[arg(long, value_name = "S", default_value = "deterministic", value_parser = ["deterministic", "free"], requires = "plants")]
+    pub schedule: String,
+    /// With --plants: seconds a plant may stay silent (not joining, not delivering its block)
+    /// before it is dropped and training goes on without it.
+    #[arg(long, value_name = "S", default_value_t = 30.0, requires = "plants")]
+    pub plant_timeout: f64,
+    /// With --plants: each plant steps at most HZ steps per second of wall clock, as a robot
+    /// at its control rate (simulated plants otherwise step as fast as they can, which with
+    /// the free schedule takes the learner's CPU) [default: unpaced].
+    #[arg(long, value_name = "HZ", requires = "plants")]
+    pub plant_rate: Option<f64>,
 }
 
 /// `mpo render`.

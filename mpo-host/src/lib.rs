@@ -15,6 +15,7 @@ pub mod contact_sheet;
 pub mod device;
 pub mod durable;
 pub mod eval;
+pub mod fleet;
 pub mod link;
 pub mod metrics;
 pub mod outage_log;

@@ -34,7 +34,12 @@ pub struct Instance {
     pub policy: fn(&Verified) -> Result<Box<dyn Policy>, CheckpointError>,
     /// Serves a policy of these sizes in the controller process.
     pub serve: ServeFn,
+    /// Runs a fleet's plant with a policy of these sizes (`mpo plant-worker`).
+    pub plant: PlantFn,
 }
+
+/// What a fleet's plant process runs for a policy of some sizes; returns its steps.
+pub type PlantFn = fn(&crate::fleet::worker::WorkerInit<'_>) -> Result<u64, String>;
 
 impl std::fmt::Debug for Instance {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -125,6 +130,7 @@ macro_rules! spec {
                     >::boxed,
                     policy: $crate::policy::load::<$obs, $act, { $act * ($act + 1) / 2 }, Self::Policy>,
                     serve: $crate::policy::serve::<$obs, $act, { $act * ($act + 1) / 2 }, Self::Policy>,
+                    plant: $crate::fleet::worker::run::<$obs, $act, { $act * ($act + 1) / 2 }, Self::Policy>,
                 }
             }
         }

@@ -18,9 +18,11 @@ use serde::{Deserialize, Serialize};
 pub struct TimeSplit {
     /// Storing transitions, drawing batches and the learner's updates.
     pub learn_s: f64,
-    /// Stepping the environment (and resetting it).
+    /// Stepping the environment (and resetting it); with a fleet (`--plants`), waiting for
+    /// the plants' blocks.
     pub env_s: f64,
-    /// Choosing actions (in-process, through the controller or on the device).
+    /// Choosing actions (in-process, through the controller or on the device); with a fleet,
+    /// sending the policy to the plants.
     pub act_s: f64,
     /// Evaluation episodes (and evaluation contact sheets).
     pub evaluate_s: f64,

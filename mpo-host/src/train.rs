@@ -62,6 +62,9 @@ pub struct Summary {
     /// checkpoints): the learning part's updates/s is the figure the learner bench measures.
     #[serde(default)]
     pub time: TimeSplit,
+    /// The fleet's counters with `--plants` (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fleet: Option<crate::fleet::FleetReport>,
 }
 
 /// What `mpo train` was asked to do.
@@ -88,6 +91,8 @@ pub struct TrainRequest<'a> {
     pub device: Option<DeviceOptions>,
     /// `--render-every N`: contact sheets of the evaluation policy (`crate::render`).
     pub render: Option<crate::render::EvaluationStrips>,
+    /// Collect with plant processes (`--plants N`) instead of in-process.
+    pub fleet: Option<crate::fleet::FleetOptions>,
 }
 
 /// How to run the device trainer (`--device`).
@@ -149,7 +154,41 @@ fn attach(t: &mut dyn Training, req: &TrainRequest<'_>) -> Result<(), TrainError
         eprintln!("learning on the device `{}`", opts.cmd);
         t.attach_device(dev, &req.settings)?;
     }
+    if let Some(opts) = &req.fleet {
+        let fleet = start_fleet(opts, req, z, t.policy_len())?;
+        t.attach_fleet(fleet);
+    }
     Ok(())
+}
+
+/// Starts the plant processes of `--plants N` and waits until they joined.
+fn start_fleet(
+    opts: &crate::fleet::FleetOptions,
+    req: &TrainRequest<'_>,
+    z: crate::sizes::Sizes,
+    policy_len: usize,
+) -> Result<crate::fleet::Fleet, TrainError> {
+    let s = &req.settings;
+    let identity = crate::fleet::identity(&req.task, &s.net, &z, policy_len);
+    let welcome = crate::fleet::welcome_of(s);
+    let mut fleet = crate::fleet::Fleet::open(opts.clone(), identity, welcome, s.seed)?;
+    let task_args = crate::link::ControllerTarget::of(s).args();
+    for i in 0..opts.plants {
+        fleet.spawn(i, &task_args)?;
+    }
+    let joined = fleet.admit(opts.timeout);
+    for e in fleet.take_events() {
+        eprintln!("{e}");
+    }
+    joined?;
+    eprintln!(
+        "collecting with {} plant processes (run id {}, {} schedule, {} steps per block)",
+        opts.plants,
+        fleet.run_id(),
+        fleet.report().schedule,
+        opts.sync_every
+    );
+    Ok(fleet)
 }
 
 /// A run in progress: its outputs, metrics rows, clocks and the marks rates are measured
@@ -327,6 +366,11 @@ impl<'r> Session<'r> {
                 self.progress.log(&e);
             }
         }
+        if let Some(fleet) = t.fleet_mut() {
+            for e in fleet.take_events() {
+                self.progress.log(&e);
+            }
+        }
         self.progress.set_position(t.env_steps());
         let (now, (t0, s0, u0)) = (self.wall(), self.mark);
         if now - t0 > 0.0 && !self.progress.is_hidden() {
@@ -372,6 +416,7 @@ impl<'r> Session<'r> {
             StepError::Sim(s) => TrainError::Sim(s),
             StepError::Link(l) => TrainError::Link(l),
             StepError::Device(d) => TrainError::Device(d),
+            StepError::Fleet(f) => TrainError::Fleet(f),
             StepError::Update(what) => TrainError::NonFinite {
                 update: t.updates(),
                 env_steps: t.env_steps(),
@@ -399,6 +444,12 @@ impl<'r> Session<'r> {
                 c.misses, c.requests
             ));
         }
+        let fleet = t.take_fleet().map(|mut f| {
+            for e in f.take_events() {
+                self.progress.log(&e);
+            }
+            f.finish()
+        });
         let inner = t.time_split();
         let time = TimeSplit {
             learn_s: inner.learn_s,
@@ -423,6 +474,7 @@ impl<'r> Session<'r> {
             controller,
             device: t.device_report(),
             time,
+            fleet,
         }
     }
 }

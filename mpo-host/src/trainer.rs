@@ -17,11 +17,12 @@ use mpo_core::agent::{AgentError, AgentOf, AgentSchedule};
 use mpo_core::learner::UpdateError;
 use mpo_core::network::{PolicyNet, PolicyTrain, ValueNet};
 use mpo_core::replay::Transition;
-use sim_bridge::{Environment, TaskDef};
+use sim_bridge::{Environment, SimError, TaskDef};
 
 use crate::checkpoint::{self, CheckpointError, Counters, Meta, Verified};
 use crate::device::{Device, DeviceReport};
 use crate::eval::evaluate_with;
+use crate::fleet::Fleet;
 use crate::link::Link;
 use crate::metrics::{self, StatsAccumulator};
 use crate::policy::Policy;
@@ -34,7 +35,7 @@ use crate::training::{Training, TrainingInit};
 
 /// Mixed into the run's seed for the collector and sampler root (the learner uses the seed
 /// itself), so the streams differ.
-const STREAM_SALT: u64 = 0x6d70_6f2d_686f_7374;
+pub(crate) const STREAM_SALT: u64 = 0x6d70_6f2d_686f_7374;
 
 /// [`Trainer`] with the two-layer MLPs (actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`).
 pub type MlpTrainer<
@@ -107,6 +108,9 @@ pub struct Trainer<
     device_action: [f32; ACT],
     /// Seconds spent learning, stepping the environment and acting in this process.
     pub times: TimeSplit,
+    /// The plant processes, when collecting with a fleet (`--plants N`): the trainer then
+    /// steps no environment of its own.
+    pub fleet: Option<Fleet>,
 }
 
 impl<
@@ -212,6 +216,7 @@ impl<
             device: None,
             device_action: [0.0; ACT],
             times: TimeSplit::default(),
+            fleet: None,
         })
     }
 
@@ -227,7 +232,7 @@ impl<
             path: v.dir.join("meta.json"),
             message: format!("bad {what}"),
         };
-        agent.collector =
+        agent.explore.collector =
             checkpoint::unhex32(&m.collector_rng).ok_or_else(|| bad("collector_rng"))?;
         agent.sampler = checkpoint::unhex32(&m.sampler_rng).ok_or_else(|| bad("sampler_rng"))?;
         agent.env_steps = m.env_steps;
@@ -249,7 +254,7 @@ impl<
             episodes: self.episodes,
             updates: l.updates,
             learner_rng: checkpoint::hex(&l.rng_state),
-            collector_rng: checkpoint::hex(&self.agent.collector),
+            collector_rng: checkpoint::hex(&self.agent.explore.collector),
             sampler_rng: checkpoint::hex(&self.agent.sampler),
             replay: Counters {
                 head: c.head,
@@ -263,9 +268,13 @@ impl<
         }
     }
 
-    /// True between episodes (where checkpoints may be taken).
+    /// True between episodes (where checkpoints may be taken); with a fleet, see
+    /// [`Fleet::at_boundary`].
     pub fn at_episode_boundary(&self) -> bool {
-        !self.in_episode
+        match &self.fleet {
+            Some(f) => f.at_boundary(),
+            None => !self.in_episode,
+        }
     }
 
     /// Acts through `link` from now on (the learner's current policy is pushed before the next
@@ -344,6 +353,9 @@ impl<
         if self.device.is_some() {
             return self.collect_on_device(steps, stop_at_episode_end);
         }
+        if self.fleet.is_some() {
+            return self.collect_from_fleet(steps, stop_at_episode_end);
+        }
         let mut obs = [0f32; OBS];
         let mut act = [0f32; ACT];
         let mut laps = Laps::start();
@@ -364,40 +376,26 @@ impl<
                 self.agent.act(&obs, &mut act)
             };
             laps.lap(&mut self.times.act_s);
-            // The policy acts in [-1, 1] (the environment maps it onto the actuators'
-            // ranges); the replay keeps the sample.
-            for (o, a) in self.act64.iter_mut().zip(&act) {
-                *o = a.clamp(-1.0, 1.0) as f64;
-            }
-            let step = self
-                .env
-                .try_step(&self.act64, &mut self.next64)
-                .map_err(StepError::Sim)?;
+            let (t, last) = env_step(
+                self.env.as_mut(),
+                &obs,
+                &act,
+                log_prob,
+                self.action_penalty,
+                &mut self.act64,
+                &mut self.next64,
+            )
+            .map_err(StepError::Sim)?;
             laps.lap(&mut self.times.env_s);
-            let mut excess = 0f32;
-            for (a, c) in act.iter().zip(&self.act64) {
-                excess += (a - *c as f32) * (a - *c as f32);
-            }
-            let mut t = Transition {
-                obs,
-                action: act,
-                reward: step.reward as f32 - self.action_penalty * excess,
-                next_obs: [0.0; OBS],
-                discount: step.discount as f32,
-                behaviour_log_prob: log_prob,
-            };
-            for (o, x) in t.next_obs.iter_mut().zip(&self.next64) {
-                *o = *x as f32;
-            }
             core::mem::swap(&mut self.obs64, &mut self.next64);
             self.episode_step += 1;
-            if step.last {
+            if last {
                 self.in_episode = false;
                 self.episodes += 1;
             }
-            self.observe(&t).map_err(StepError::Update)?;
+            self.observe(None, &t).map_err(StepError::Update)?;
             laps.lap(&mut self.times.learn_s);
-            if step.last && stop_at_episode_end {
+            if last && stop_at_episode_end {
                 return Ok(taken);
             }
         }
@@ -469,6 +467,97 @@ impl<
         Ok(steps)
     }
 
+    /// [`Trainer::collect`] with a fleet: sends the policy when it changed, collects a round
+    /// (deterministic) or what arrived (free), inserts the blocks; until `steps` were
+    /// inserted or, with `stop_at_episode_end`, the fleet is between episodes.
+    fn collect_from_fleet(
+        &mut self,
+        steps: u64,
+        stop_at_episode_end: bool,
+    ) -> Result<u64, StepError> {
+        let mut fleet = self.fleet.take().expect("checked");
+        let r = self.fleet_rounds(&mut fleet, steps, stop_at_episode_end);
+        self.fleet = Some(fleet);
+        r
+    }
+
+    fn fleet_rounds(
+        &mut self,
+        fleet: &mut Fleet,
+        steps: u64,
+        stop_at_episode_end: bool,
+    ) -> Result<u64, StepError> {
+        let start = self.agent.env_steps;
+        // Waiting for the plants counts as the environment's time, sending the policy as
+        // acting, inserting (and the updates it runs) as learning.
+        let mut laps = Laps::start();
+        loop {
+            self.send_policy(fleet)?;
+            laps.lap(&mut self.times.act_s);
+            fleet
+                .collect(self.agent.env_steps)
+                .map_err(StepError::Fleet)?;
+            laps.lap(&mut self.times.env_s);
+            let inbox = fleet.take_inbox();
+            let mut r = Ok(());
+            for (i, frame) in &inbox {
+                // Free: parameters go out between blocks, at the plants' rate.
+                r = self.insert_block(fleet, *i, frame);
+                laps.lap(&mut self.times.learn_s);
+                if r.is_ok() && fleet.is_free() {
+                    r = self.send_policy(fleet);
+                    laps.lap(&mut self.times.act_s);
+                }
+                if r.is_err() {
+                    break;
+                }
+            }
+            fleet.recycle(inbox);
+            r?;
+            let taken = self.agent.env_steps - start;
+            if taken >= steps || (stop_at_episode_end && taken > 0 && fleet.at_boundary()) {
+                return Ok(taken);
+            }
+        }
+    }
+
+    /// Sends the policy to the fleet when [`Fleet::params_due`] says so.
+    fn send_policy(&mut self, fleet: &mut Fleet) -> Result<(), StepError> {
+        if fleet.params_due(self.params_dirty, self.agent.env_steps) {
+            fleet
+                .send_params(&self.agent.learner.live.actor, self.agent.env_steps)
+                .map_err(StepError::Fleet)?;
+            self.params_dirty = false;
+        }
+        Ok(())
+    }
+
+    /// Inserts the transitions of one block of plant `i` in order: a record that starts an
+    /// episode opens a fresh replay episode for the plant, and each runs the updates the
+    /// schedule calls for (the rate limit: updates per inserted transition).
+    fn insert_block(&mut self, fleet: &mut Fleet, i: usize, frame: &[u8]) -> Result<(), StepError> {
+        let Some((head, records)) = fleet.accept(i, frame, OBS, ACT) else {
+            return Ok(());
+        };
+        let words = mpo_link::fleet::frames::record_words(OBS, ACT);
+        for rec in records.chunks_exact(4 * words) {
+            let (flags, t) = decode_record::<OBS, ACT>(rec);
+            if flags & mpo_link::fleet::frames::FIRST != 0 {
+                fleet.members[i].episode = self.agent.replay.new_episode_id();
+            }
+            self.observe(Some(fleet.members[i].episode), &t)
+                .map_err(StepError::Update)?;
+            if flags & mpo_link::fleet::frames::LAST != 0 {
+                self.episodes += 1;
+            }
+        }
+        if i == 0 {
+            // Plant 0's stream is the in-process run's: the checkpoint keeps it.
+            self.agent.explore.collector = head.collector;
+        }
+        Ok(())
+    }
+
     /// Copies the device's parameters and counters into the mirror `agent` (for the
     /// checkpoint, the metrics and `params_sha256`).
     fn fetch_device_params(&mut self) -> Result<(), TrainError> {
@@ -537,12 +626,14 @@ impl<
         })
     }
 
-    /// Stores a transition and runs the learner updates the schedule calls for.
-    fn observe(&mut self, t: &Transition<OBS, ACT>) -> Result<(), String> {
+    /// Stores a transition (in the replay's current episode, or in `episode` for a fleet's
+    /// plant) and runs the learner updates the schedule calls for.
+    fn observe(&mut self, episode: Option<u64>, t: &Transition<OBS, ACT>) -> Result<(), String> {
         let mut bad = None;
+        let episode = episode.unwrap_or(self.agent.replay.counters().current_episode);
         let (stats, dirty) = (&mut self.stats, &mut self.params_dirty);
         self.agent
-            .observe(t, &self.pool, &mut |s| {
+            .observe_in(episode, t, &self.pool, &mut |s| {
                 *dirty = true;
                 if bad.is_none() {
                     bad = metrics::first_non_finite(s);
@@ -555,6 +646,8 @@ impl<
                 }
                 e => e.to_string(),
             })?;
+        // A refit observation normalisation changes the policy without an update.
+        self.params_dirty |= self.agent.obs_norm_due();
         match bad {
             Some((name, v)) => Err(format!("learner statistic {name} = {v}")),
             None => Ok(()),
@@ -566,6 +659,70 @@ impl<
     pub fn fill_batch(&mut self) -> Result<(), String> {
         self.agent.fill_batch().map_err(|e| e.to_string())
     }
+}
+
+/// One environment step from `obs` with the behaviour policy's sample `act` (log-density
+/// `log_prob`), and the transition it stores. The policy acts in [-1, 1] (the environment maps
+/// it onto the actuators' ranges): the plant gets the clamped action, the replay keeps the
+/// sample, and the reward pays `action_penalty` for what the clamp removed. Returns the
+/// transition and whether the step ended the episode. The in-process trainer and a fleet's
+/// plants step through this one function, so their transitions are the same bits.
+pub(crate) fn env_step<const OBS: usize, const ACT: usize>(
+    env: &mut dyn Environment,
+    obs: &[f32; OBS],
+    act: &[f32; ACT],
+    log_prob: f32,
+    action_penalty: f32,
+    act64: &mut [f64; ACT],
+    next64: &mut [f64; OBS],
+) -> Result<(Transition<OBS, ACT>, bool), SimError> {
+    for (o, a) in act64.iter_mut().zip(act) {
+        *o = a.clamp(-1.0, 1.0) as f64;
+    }
+    let step = env.try_step(act64, next64)?;
+    let mut excess = 0f32;
+    for (a, c) in act.iter().zip(act64.iter()) {
+        excess += (a - *c as f32) * (a - *c as f32);
+    }
+    let mut t = Transition {
+        obs: *obs,
+        action: *act,
+        reward: step.reward as f32 - action_penalty * excess,
+        next_obs: [0.0; OBS],
+        discount: step.discount as f32,
+        behaviour_log_prob: log_prob,
+    };
+    for (o, x) in t.next_obs.iter_mut().zip(next64.iter()) {
+        *o = *x as f32;
+    }
+    Ok((t, step.last))
+}
+
+/// One record of a fleet block (`mpo_link::fleet::frames::record_words` little-endian
+/// words: flags, obs, action, reward, next obs, discount, log-probability): its flags and
+/// transition.
+fn decode_record<const OBS: usize, const ACT: usize>(rec: &[u8]) -> (u32, Transition<OBS, ACT>) {
+    let mut w = rec.chunks_exact(4).map(|b| [b[0], b[1], b[2], b[3]]);
+    let flags = u32::from_le_bytes(w.next().unwrap_or_default());
+    let mut f = w.map(f32::from_le_bytes);
+    let mut t = Transition {
+        obs: [0.0; OBS],
+        action: [0.0; ACT],
+        reward: 0.0,
+        next_obs: [0.0; OBS],
+        discount: 0.0,
+        behaviour_log_prob: 0.0,
+    };
+    let slots = t
+        .obs
+        .iter_mut()
+        .chain(t.action.iter_mut())
+        .chain([&mut t.reward]);
+    let slots = slots.chain(t.next_obs.iter_mut()).chain([&mut t.discount]);
+    for x in slots.chain([&mut t.behaviour_log_prob]) {
+        *x = f.next().unwrap_or(0.0);
+    }
+    (flags, t)
 }
 
 /// The agent's schedule from the run's settings.
@@ -625,7 +782,7 @@ impl<
         self.episodes
     }
     fn at_episode_boundary(&self) -> bool {
-        !self.in_episode
+        Trainer::at_episode_boundary(self)
     }
     fn collect(&mut self, steps: u64, stop_at_episode_end: bool) -> Result<u64, StepError> {
         self.collect_until(steps, stop_at_episode_end)
@@ -676,5 +833,18 @@ impl<
     }
     fn device_report(&self) -> Option<DeviceReport> {
         self.device.as_ref().map(|d| d.report.clone())
+    }
+    fn policy_len(&self) -> usize {
+        self.agent.learner.live.actor.len()
+    }
+    fn attach_fleet(&mut self, fleet: Fleet) {
+        self.fleet = Some(fleet);
+        self.params_dirty = true;
+    }
+    fn fleet_mut(&mut self) -> Option<&mut Fleet> {
+        self.fleet.as_mut()
+    }
+    fn take_fleet(&mut self) -> Option<Fleet> {
+        self.fleet.take()
     }
 }

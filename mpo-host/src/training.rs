@@ -75,6 +75,14 @@ pub trait Training {
     /// Seconds this process spent learning, stepping the environment and acting (the other
     /// parts of [`crate::time_split::TimeSplit`] are the training loop's).
     fn time_split(&self) -> crate::time_split::TimeSplit;
+    /// Scalar parameters of the policy (what a fleet's plants receive).
+    fn policy_len(&self) -> usize;
+    /// Collects with a fleet of plant processes from now on (`--plants N`).
+    fn attach_fleet(&mut self, fleet: crate::fleet::Fleet);
+    /// The fleet, when collecting with one.
+    fn fleet_mut(&mut self) -> Option<&mut crate::fleet::Fleet>;
+    /// Takes the fleet (at the end of the run).
+    fn take_fleet(&mut self) -> Option<crate::fleet::Fleet>;
 }
 
 /// Why training stopped early.
@@ -126,6 +134,9 @@ pub enum TrainError {
     /// The device trainer (`--device`) failed.
     #[error(transparent)]
     Device(#[from] crate::device::DeviceError),
+    /// The fleet of plant processes failed (`--plants`).
+    #[error(transparent)]
+    Fleet(#[from] crate::fleet::FleetError),
     /// Sizes of the row and the simulator disagree (a bug).
     #[error("internal: {0}")]
     Internal(String),
@@ -142,4 +153,6 @@ pub enum StepError {
     Link(mpo_link::LinkError),
     /// The device trainer failed.
     Device(crate::device::DeviceError),
+    /// The fleet failed (every plant dropped, the transport).
+    Fleet(crate::fleet::FleetError),
 }

@@ -15,6 +15,7 @@
 
 pub mod controller;
 pub mod external;
+pub mod fleet;
 pub mod messages;
 pub mod plant;
 pub mod realtime;

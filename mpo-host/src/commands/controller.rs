@@ -4,6 +4,31 @@ use super::error::Error;
 use crate::cli::ControllerArgs;
 use crate::rows;
 
+/// `mpo plant-worker`: a fleet's plant, until the learner stops it; returns its steps.
+pub fn plant_worker(args: &crate::cli::PlantWorkerArgs) -> Result<u64, Error> {
+    let run = mpo_link::RunId::parse(&args.run).map_err(|e| Error::Plant(e.to_string()))?;
+    let task = match &args.task_file {
+        Some(f) => sim_bridge::TaskDef::from_file(f).map_err(rows::RowError::from)?,
+        None => rows::builtin(&args.task)?,
+    };
+    let row = rows::row(&task, &args.net)?;
+    let instance = crate::registry::find(&row.sizes)?;
+    // Ctrl-C in a terminal reaches the whole process group: the learner decides when its
+    // plants stop (it finishes the episode, checkpoints, then sends STOP).
+    let _ = ctrlc::set_handler(|| {});
+    let init = crate::fleet::worker::WorkerInit {
+        run: &run,
+        index: args.index,
+        task: &task,
+        net: &args.net,
+        sizes: row.sizes,
+        block_hint: args.block_hint,
+        rate: args.rate,
+        spawned: true,
+    };
+    (instance.plant)(&init).map_err(Error::Plant)
+}
+
 /// `mpo controller`: serves the run until SIGINT/SIGTERM; returns its counters.
 pub fn controller(args: &ControllerArgs) -> Result<mpo_link::controller::ControllerStats, Error> {
     let run = mpo_link::RunId::parse(&args.run).map_err(|e| Error::Controller(e.to_string()))?;

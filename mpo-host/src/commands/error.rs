@@ -38,6 +38,9 @@ pub enum Error {
     /// The controller process (`mpo controller`).
     #[error("controller: {0}")]
     Controller(String),
+    /// A fleet's plant process (`mpo plant-worker`).
+    #[error("plant: {0}")]
+    Plant(String),
     /// Simulator.
     #[error("simulator: {0}")]
     Sim(#[from] sim_bridge::SimError),

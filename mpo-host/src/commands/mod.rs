@@ -17,7 +17,7 @@ pub use config::{
     Flags, Resolved, defaults, layers_from, print_config, resolve_fresh, resolve_resumed,
     resolve_train,
 };
-pub use controller::controller;
+pub use controller::{controller, plant_worker};
 pub use error::Error;
 pub use eval::{EvalSummary, eval};
 pub use export::{ExportSummary, export};

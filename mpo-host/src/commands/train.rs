@@ -67,7 +67,51 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
         threads,
         device,
         render,
+        fleet: fleet_options(args)?,
     })?)
+}
+
+/// `--plants N` and its flags, checked.
+fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>, Error> {
+    let Some(plants) = args.plants else {
+        return Ok(None);
+    };
+    use mpo_link::fleet::{frames, ipc};
+    if plants == 0 || plants > ipc::MAX_LOCAL {
+        return Err(invalid(&format!(
+            "--plants must be 1 to {} on one host",
+            ipc::MAX_LOCAL
+        )));
+    }
+    let k = args.sync_every.unwrap_or(crate::fleet::DEFAULT_SYNC_EVERY);
+    if k == 0 || k as usize > frames::MAX_BLOCK {
+        return Err(invalid(&format!(
+            "--sync-every must be 1 to {}",
+            frames::MAX_BLOCK
+        )));
+    }
+    if args.link.controller != crate::link::ControllerKind::InProcess {
+        return Err(invalid(
+            "--plants and --controller: a fleet's plants act with their own copy of the policy",
+        ));
+    }
+    if let Some(r) = args.plant_rate
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(invalid("--plant-rate must be positive"));
+    }
+    if !(args.plant_timeout.is_finite() && args.plant_timeout > 0.0) {
+        return Err(invalid("--plant-timeout must be positive"));
+    }
+    Ok(Some(crate::fleet::FleetOptions {
+        plants,
+        sync_every: k,
+        schedule: crate::fleet::FleetSchedule::parse(&args.schedule)
+            .ok_or_else(|| invalid("--schedule: deterministic or free"))?,
+        timeout: Duration::from_secs_f64(args.plant_timeout),
+        max_lag: crate::fleet::DEFAULT_MAX_LAG,
+        rate: args.plant_rate,
+    }))
 }
 
 fn invalid(m: &str) -> Error {
