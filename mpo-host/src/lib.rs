@@ -10,6 +10,7 @@ pub mod app;
 pub mod caption;
 pub mod checkpoint;
 pub mod cli;
+pub mod collection;
 pub mod commands;
 pub mod contact_sheet;
 pub mod device;

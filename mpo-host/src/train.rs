@@ -167,11 +167,11 @@ fn start_fleet(
     req: &TrainRequest<'_>,
     z: crate::sizes::Sizes,
     policy_len: usize,
-) -> Result<crate::fleet::Fleet, TrainError> {
+) -> Result<crate::fleet::learner::Fleet, TrainError> {
     let s = &req.settings;
     let identity = crate::fleet::identity(&req.task, &s.net, &z, policy_len);
     let welcome = crate::fleet::welcome_of(s);
-    let mut fleet = crate::fleet::Fleet::open(opts.clone(), identity, welcome, s.seed)?;
+    let mut fleet = crate::fleet::learner::Fleet::open(opts.clone(), identity, welcome, s.seed)?;
     let task_args = crate::link::ControllerTarget::of(s).args();
     for i in 0..opts.plants {
         fleet.spawn(i, &task_args)?;

@@ -13,16 +13,16 @@
 
 use std::path::Path;
 
-use mpo_core::agent::{AgentError, AgentOf, AgentSchedule};
+use mpo_core::agent::{AgentError, AgentOf};
 use mpo_core::learner::UpdateError;
 use mpo_core::network::{PolicyNet, PolicyTrain, ValueNet};
 use mpo_core::replay::Transition;
-use sim_bridge::{Environment, SimError, TaskDef};
+use sim_bridge::{Environment, TaskDef};
 
 use crate::checkpoint::{self, CheckpointError, Counters, Meta, Verified};
 use crate::device::{Device, DeviceReport};
 use crate::eval::evaluate_with;
-use crate::fleet::Fleet;
+use crate::fleet::learner::Fleet;
 use crate::link::Link;
 use crate::metrics::{self, StatsAccumulator};
 use crate::policy::Policy;
@@ -33,9 +33,8 @@ use crate::time_split::{Laps, TimeSplit};
 use crate::training::{StepError, TrainError};
 use crate::training::{Training, TrainingInit};
 
-/// Mixed into the run's seed for the collector and sampler root (the learner uses the seed
-/// itself), so the streams differ.
-pub(crate) const STREAM_SALT: u64 = 0x6d70_6f2d_686f_7374;
+pub use crate::collection::agent_schedule;
+use crate::collection::{STREAM_SALT, env_step};
 
 /// [`Trainer`] with the two-layer MLPs (actor widths `AH1`, `AH2`, critic widths `QH1`, `QH2`).
 pub type MlpTrainer<
@@ -661,43 +660,6 @@ impl<
     }
 }
 
-/// One environment step from `obs` with the behaviour policy's sample `act` (log-density
-/// `log_prob`), and the transition it stores. The policy acts in [-1, 1] (the environment maps
-/// it onto the actuators' ranges): the plant gets the clamped action, the replay keeps the
-/// sample, and the reward pays `action_penalty` for what the clamp removed. Returns the
-/// transition and whether the step ended the episode. The in-process trainer and a fleet's
-/// plants step through this one function, so their transitions are the same bits.
-pub(crate) fn env_step<const OBS: usize, const ACT: usize>(
-    env: &mut dyn Environment,
-    obs: &[f32; OBS],
-    act: &[f32; ACT],
-    log_prob: f32,
-    action_penalty: f32,
-    act64: &mut [f64; ACT],
-    next64: &mut [f64; OBS],
-) -> Result<(Transition<OBS, ACT>, bool), SimError> {
-    for (o, a) in act64.iter_mut().zip(act) {
-        *o = a.clamp(-1.0, 1.0) as f64;
-    }
-    let step = env.try_step(act64, next64)?;
-    let mut excess = 0f32;
-    for (a, c) in act.iter().zip(act64.iter()) {
-        excess += (a - *c as f32) * (a - *c as f32);
-    }
-    let mut t = Transition {
-        obs: *obs,
-        action: *act,
-        reward: step.reward as f32 - action_penalty * excess,
-        next_obs: [0.0; OBS],
-        discount: step.discount as f32,
-        behaviour_log_prob: log_prob,
-    };
-    for (o, x) in t.next_obs.iter_mut().zip(next64.iter()) {
-        *o = *x as f32;
-    }
-    Ok((t, step.last))
-}
-
 /// One record of a fleet block (`mpo_link::fleet::frames::record_words` little-endian
 /// words: flags, obs, action, reward, next obs, discount, log-probability): its flags and
 /// transition.
@@ -723,22 +685,6 @@ fn decode_record<const OBS: usize, const ACT: usize>(rec: &[u8]) -> (u32, Transi
         *x = f.next().unwrap_or(0.0);
     }
     (flags, t)
-}
-
-/// The agent's schedule from the run's settings.
-pub fn agent_schedule(settings: &Settings) -> AgentSchedule {
-    let s = &settings.schedule;
-    AgentSchedule {
-        warmup_steps: s.warmup_steps,
-        update_interval: s.update_interval,
-        updates_per_interval: s.updates_per_interval,
-        n_step: match settings.mpo.policy_evaluation {
-            crate::settings::PolicyEvaluation::NStep => settings.mpo.n_step,
-            _ => 1,
-        },
-        noise_corr: s.noise_corr as f32,
-        noise_pink: s.noise_pink,
-    }
 }
 
 impl<

@@ -78,11 +78,11 @@ pub trait Training {
     /// Scalar parameters of the policy (what a fleet's plants receive).
     fn policy_len(&self) -> usize;
     /// Collects with a fleet of plant processes from now on (`--plants N`).
-    fn attach_fleet(&mut self, fleet: crate::fleet::Fleet);
+    fn attach_fleet(&mut self, fleet: crate::fleet::learner::Fleet);
     /// The fleet, when collecting with one.
-    fn fleet_mut(&mut self) -> Option<&mut crate::fleet::Fleet>;
+    fn fleet_mut(&mut self) -> Option<&mut crate::fleet::learner::Fleet>;
     /// Takes the fleet (at the end of the run).
-    fn take_fleet(&mut self) -> Option<crate::fleet::Fleet>;
+    fn take_fleet(&mut self) -> Option<crate::fleet::learner::Fleet>;
 }
 
 /// Why training stopped early.

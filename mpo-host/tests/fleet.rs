@@ -96,7 +96,8 @@ fn a_killed_plant_is_dropped_and_the_run_goes_on() {
 
 #[test]
 fn a_plant_of_another_task_is_refused_with_both_named() {
-    use mpo_host::fleet::{Fleet, FleetError, FleetOptions, FleetSchedule};
+    use mpo_host::fleet::learner::Fleet;
+    use mpo_host::fleet::{FleetError, FleetOptions, FleetSchedule};
     let task = sim_bridge::TaskDef::builtin("cartpole-balance").unwrap();
     let row = mpo_host::rows::row(&task, "tiny").unwrap();
     let id = mpo_host::fleet::identity(&task, "tiny", &row.sizes, 1);

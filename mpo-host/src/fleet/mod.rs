@@ -7,7 +7,7 @@
 //! policy's parameters back. docs/fleet.md is the user's guide.
 //!
 //! This module is the learner's sizes-free side: starting and admitting the plants
-//! ([`Fleet::open`], [`Fleet::spawn`], [`Fleet::admit`]), the schedules' rounds, faults and the
+//! ([`learner::Fleet::open`], [`learner::Fleet::spawn`], [`learner::Fleet::admit`]), the schedules' rounds, faults and the
 //! counters. What depends on the sizes is elsewhere: the trainer decodes blocks into
 //! transitions (`crate::trainer`), and a plant process runs [`worker::run`] for its row.
 //!
@@ -23,8 +23,6 @@ use std::time::Duration;
 use mpo_core::rng::Rng;
 use mpo_link::fleet::frames::{Identity, put_text, text_of};
 use serde::{Deserialize, Serialize};
-
-pub use learner::Fleet;
 
 /// How plants and learner take turns.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -101,7 +99,7 @@ pub fn env_seed_of(seed: u32, i: usize) -> u32 {
 /// split of the root seeded with `seed ^ STREAM_SALT`), plant `i`'s the first split of a root
 /// seeded with that value mixed with `i`.
 pub fn collector_of(seed: u32, i: usize) -> [u8; 32] {
-    let base = seed as u64 ^ crate::trainer::STREAM_SALT;
+    let base = seed as u64 ^ crate::collection::STREAM_SALT;
     let root = base ^ (i as u64).wrapping_mul(PLANT_SALT);
     Rng::seed_from_u64(root).split().state()
 }
@@ -143,7 +141,7 @@ pub fn identity(
 /// are filled per plant at admission): the warm-up, the exploration noise, the policy's
 /// standard-deviation floor and the action penalty, as the in-process trainer uses them.
 pub fn welcome_of(settings: &crate::settings::Settings) -> mpo_link::fleet::frames::Welcome {
-    let sched = crate::trainer::agent_schedule(settings);
+    let sched = crate::collection::agent_schedule(settings);
     let mut w: mpo_link::fleet::frames::Welcome = bytemuck::Zeroable::zeroed();
     w.warmup_steps = sched.warmup_steps;
     w.noise_corr = sched.noise_corr;

@@ -5,7 +5,7 @@
 //!
 //! It acts exactly as the in-process trainer does (the same [`Explorer`] code and draws, the
 //! same policy sample and log-density, the same step and reward through
-//! `crate::trainer::env_step`), which is why plant 0 of a one-plant deterministic fleet with
+//! `crate::collection::env_step`), which is why plant 0 of a one-plant deterministic fleet with
 //! K = 1 produces the in-process run's transitions bit for bit.
 //!
 //! The step path (act, step, encode the record) allocates nothing: the block's buffers are
@@ -219,7 +219,7 @@ impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
             pi.transform(&z, &mut act);
             pi.log_prob(&act)
         };
-        let (t, last) = crate::trainer::env_step(
+        let (t, last) = crate::collection::env_step(
             self.env.as_mut(),
             &obs,
             &act,
