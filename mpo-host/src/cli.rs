@@ -66,9 +66,12 @@ pub enum Command {
     /// parameters. Prints `ready` once listening and a `stats ...` line on exit (SIGINT or
     /// SIGTERM).
     Controller(ControllerArgs),
-    /// A plant of a fleet (started by `mpo train --plants N`; docs/fleet.md): joins the run,
-    /// steps its own environment with the policy it last received and sends its transitions.
-    #[command(hide = true)]
+    /// A plant of a fleet (docs/fleet.md): joins the run, steps its own environment with the
+    /// policy it last received and sends its transitions.
+    ///
+    /// `mpo train --plants N` starts its plants itself. On another host, start each plant of
+    /// `mpo train --plants-remote N` by hand: `mpo plant-worker --fleet-connect ENDPOINT --run
+    /// RUN_ID --index I` with the learner's task flags (it prints the command).
     PlantWorker(PlantWorkerArgs),
 }
 
@@ -150,7 +153,7 @@ pub struct ControllerArgs {
     pub realtime: Option<i32>,
 }
 
-/// `mpo plant-worker` (hidden: `mpo train --plants` starts it).
+/// `mpo plant-worker`.
 #[derive(Debug, Args)]
 pub struct PlantWorkerArgs {
     /// The run to join (the learner's fleet run id).
@@ -175,6 +178,55 @@ pub struct PlantWorkerArgs {
     /// the environment steps].
     #[arg(long, value_name = "HZ")]
     pub rate: Option<f64>,
+    /// A learner on another host (`mpo train --plants-remote`): its zenoh endpoint,
+    /// `tcp/ADDR:PORT`, or `tls/ADDR:PORT` with --fleet-ca/--fleet-cert/--fleet-key. Repeat
+    /// for several. Without it, the plant joins a learner of this host over iceoryx2. Needs a
+    /// build with the `zenoh` feature.
+    #[arg(long, value_name = "ENDPOINT")]
+    pub fleet_connect: Vec<String>,
+    /// With --fleet-connect: seconds to keep trying to reach the learner (its endpoint may
+    /// not listen yet) before giving up; a refused TLS handshake is retried until then too.
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = 60.0,
+        requires = "fleet_connect"
+    )]
+    pub fleet_connect_timeout: f64,
+    /// With --fleet-connect: the link's certificates.
+    #[command(flatten)]
+    pub fleet_tls: FleetTlsArgs,
+}
+
+/// The certificates of a fleet's mutual-TLS link over zenoh (`tls/` endpoints): PEM files,
+/// all three or none.
+#[derive(Debug, Args)]
+pub struct FleetTlsArgs {
+    /// The CA certificate that signed both the learner's and the plants' certificates (the
+    /// only authority trusted: a peer without a certificate of it is refused).
+    #[arg(long, value_name = "CA.pem", requires_all = ["fleet_cert", "fleet_key"])]
+    pub fleet_ca: Option<PathBuf>,
+    /// This side's certificate (the learner's must name the address plants connect to, as
+    /// a subjectAltName IP or DNS entry).
+    #[arg(long, value_name = "CERT.pem", requires_all = ["fleet_ca", "fleet_key"])]
+    pub fleet_cert: Option<PathBuf>,
+    /// This side's private key.
+    #[arg(long, value_name = "KEY.pem", requires_all = ["fleet_ca", "fleet_cert"])]
+    pub fleet_key: Option<PathBuf>,
+}
+
+impl FleetTlsArgs {
+    /// The files, when given.
+    pub fn files(&self) -> Option<mpo_link::fleet::TlsFiles> {
+        match (&self.fleet_ca, &self.fleet_cert, &self.fleet_key) {
+            (Some(ca), Some(cert), Some(key)) => Some(mpo_link::fleet::TlsFiles {
+                ca: ca.clone(),
+                cert: cert.clone(),
+                key: key.clone(),
+            }),
+            _ => None,
+        }
+    }
 }
 
 /// `mpo tasks`.
@@ -233,6 +285,7 @@ pub struct PlotArgs {
 
 /// `mpo train`.
 #[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("fleet").args(["plants", "plants_remote"])))]
 pub struct TrainArgs {
     /// Built-in task (`mpo tasks` lists them) [default: cartpole-balance].
     #[arg(long, conflicts_with = "task_file")]
@@ -307,23 +360,42 @@ pub struct TrainArgs {
     /// and keeps the row's updates per inserted transition (docs/fleet.md).
     #[arg(long, value_name = "N", conflicts_with_all = ["device", "resume"])]
     pub plants: Option<usize>,
+    /// Collect with N plants on other hosts, over zenoh, instead of starting plant processes:
+    /// the learner listens on --fleet-listen and waits (up to --plant-timeout) for N plants to
+    /// join, each started on its host as `mpo plant-worker --fleet-connect ENDPOINT --run
+    /// RUN_ID --index I` with this run's task flags (the learner prints the command). Needs a
+    /// build with the `zenoh` feature (docs/fleet.md).
+    #[arg(long, value_name = "N", conflicts_with_all = ["device", "resume"], requires = "fleet_listen")]
+    pub plants_remote: Option<usize>,
+    /// With --plants-remote: a zenoh endpoint to listen on, `tcp/ADDR:PORT`, or
+    /// `tls/ADDR:PORT` with --fleet-ca/--fleet-cert/--fleet-key (mutual TLS: only plants with
+    /// a certificate of that CA get in). Repeat for several.
+    #[arg(long, value_name = "ENDPOINT", requires = "plants_remote")]
+    pub fleet_listen: Vec<String>,
+    /// With --plants-remote: the run id the plants join with (letters, digits, '-') [default:
+    /// a fresh one, printed].
+    #[arg(long, value_name = "RUN_ID", requires = "plants_remote")]
+    pub fleet_run: Option<String>,
+    /// With --plants-remote: the link's certificates.
+    #[command(flatten)]
+    pub fleet_tls: FleetTlsArgs,
     /// With --plants: steps per block; a plant sends its transitions and receives the newest
     /// parameters every K steps [default: 50].
-    #[arg(long, value_name = "K", requires = "plants")]
+    #[arg(long, value_name = "K", requires = "fleet")]
     pub sync_every: Option<u32>,
     /// With --plants: `deterministic` (rounds in a fixed order: the same seed gives the same
     /// bits; one plant with --sync-every 1 is the in-process run) or `free` (plants never
     /// wait; faster, not reproducible).
-    #[arg(long, value_name = "S", default_value = "deterministic", value_parser = ["deterministic", "free"], requires = "plants")]
+    #[arg(long, value_name = "S", default_value = "deterministic", value_parser = ["deterministic", "free"], requires = "fleet")]
     pub schedule: String,
     /// With --plants: seconds a plant may stay silent (not joining, not delivering its block)
     /// before it is dropped and training goes on without it.
-    #[arg(long, value_name = "S", default_value_t = 30.0, requires = "plants")]
+    #[arg(long, value_name = "S", default_value_t = 30.0, requires = "fleet")]
     pub plant_timeout: f64,
     /// With --plants: each plant steps at most HZ steps per second of wall clock, as a robot
     /// at its control rate (simulated plants otherwise step as fast as they can, which with
     /// the free schedule takes the learner's CPU) [default: unpaced].
-    #[arg(long, value_name = "HZ", requires = "plants")]
+    #[arg(long, value_name = "HZ", requires = "fleet")]
     pub plant_rate: Option<f64>,
 }
 

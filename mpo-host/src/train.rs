@@ -173,8 +173,39 @@ fn start_fleet(
     let welcome = crate::fleet::welcome_of(s);
     let mut fleet = crate::fleet::learner::Fleet::open(opts.clone(), identity, welcome, s.seed)?;
     let task_args = crate::link::ControllerTarget::of(s).args();
-    for i in 0..opts.plants {
-        fleet.spawn(i, &task_args)?;
+    match &opts.remote {
+        None => {
+            for i in 0..opts.plants {
+                fleet.spawn(i, &task_args)?;
+            }
+        }
+        Some(r) => {
+            // The plants are started by hand on their hosts: say how.
+            let mut cmd = format!("mpo plant-worker --run {}", fleet.run_id());
+            for e in &r.listen.endpoints {
+                cmd.push_str(&format!(" --fleet-connect {e}"));
+            }
+            if r.listen.tls.is_some() {
+                cmd.push_str(" --fleet-ca CA.pem --fleet-cert PLANT.pem --fleet-key PLANT.key");
+            }
+            cmd.push(' ');
+            cmd.push_str(&task_args.join(" "));
+            eprintln!(
+                "fleet: listening on {} over zenoh{}, run id {}; waiting {:.0} s for {} plant(s): \
+                 on each plant's host run `{cmd} --block-hint {} --index I` (I = 0 to {})",
+                r.listen.endpoints.join(", "),
+                if r.listen.tls.is_some() {
+                    " (mutual TLS)"
+                } else {
+                    ""
+                },
+                fleet.run_id(),
+                opts.timeout.as_secs_f64(),
+                opts.plants,
+                opts.sync_every,
+                opts.plants - 1
+            );
+        }
     }
     let joined = fleet.admit(opts.timeout);
     for e in fleet.take_events() {
@@ -182,8 +213,13 @@ fn start_fleet(
     }
     joined?;
     eprintln!(
-        "collecting with {} plant processes (run id {}, {} schedule, {} steps per block)",
+        "collecting with {} plant{} over {} (run id {}, {} schedule, {} steps per block)",
         opts.plants,
+        match opts.remote {
+            None => " processes",
+            Some(_) => "s of other hosts",
+        },
+        fleet.transport(),
         fleet.run_id(),
         fleet.report().schedule,
         opts.sync_every

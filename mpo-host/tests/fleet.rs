@@ -108,6 +108,7 @@ fn a_plant_of_another_task_is_refused_with_both_named() {
         timeout: Duration::from_secs(60),
         max_lag: 100,
         rate: None,
+        remote: None,
     };
     let welcome = bytemuck::Zeroable::zeroed();
     let mut fleet = Fleet::open(opts, id, welcome, 0).unwrap();

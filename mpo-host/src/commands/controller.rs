@@ -16,6 +16,29 @@ pub fn plant_worker(args: &crate::cli::PlantWorkerArgs) -> Result<u64, Error> {
     // Ctrl-C in a terminal reaches the whole process group: the learner decides when its
     // plants stop (it finishes the episode, checkpoints, then sends STOP).
     let _ = ctrlc::set_handler(|| {});
+    let remote = match (args.fleet_connect.is_empty(), args.fleet_tls.files()) {
+        (true, None) => None,
+        (true, Some(_)) => {
+            return Err(Error::Plant(
+                "--fleet-ca/--fleet-cert/--fleet-key secure --fleet-connect's link".into(),
+            ));
+        }
+        (false, tls) => {
+            let t = args.fleet_connect_timeout;
+            if !(t.is_finite() && t > 0.0) {
+                return Err(Error::Plant(
+                    "--fleet-connect-timeout must be positive".into(),
+                ));
+            }
+            let r = mpo_link::fleet::Remote {
+                endpoints: args.fleet_connect.clone(),
+                tls,
+                connect_timeout: std::time::Duration::from_secs_f64(t),
+            };
+            crate::fleet::check_remote(&r).map_err(|e| Error::Plant(e.0))?;
+            Some(r)
+        }
+    };
     let init = crate::fleet::worker::WorkerInit {
         run: &run,
         index: args.index,
@@ -24,7 +47,10 @@ pub fn plant_worker(args: &crate::cli::PlantWorkerArgs) -> Result<u64, Error> {
         sizes: row.sizes,
         block_hint: args.block_hint,
         rate: args.rate,
-        spawned: true,
+        // Over zenoh the plant runs on its own host, started by hand: it gives up when the
+        // learner stays silent (the learner started a plant of its host itself).
+        spawned: remote.is_none(),
+        remote: remote.as_ref(),
     };
     (instance.plant)(&init).map_err(Error::Plant)
 }

@@ -71,18 +71,47 @@ pub fn train(args: &TrainArgs, interrupt: &AtomicBool) -> Result<Summary, Error>
     })?)
 }
 
-/// `--plants N` and its flags, checked.
+/// `--plants N` (or `--plants-remote N`) and its flags, checked.
 fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>, Error> {
-    let Some(plants) = args.plants else {
-        return Ok(None);
-    };
     use mpo_link::fleet::{frames, ipc};
-    if plants == 0 || plants > ipc::MAX_LOCAL {
-        return Err(invalid(&format!(
-            "--plants must be 1 to {} on one host",
-            ipc::MAX_LOCAL
-        )));
+    let tls = args.fleet_tls.files();
+    if tls.is_some() && args.plants_remote.is_none() {
+        return Err(invalid(
+            "--fleet-ca/--fleet-cert/--fleet-key secure --plants-remote's link",
+        ));
     }
+    let (plants, remote) = match (args.plants, args.plants_remote) {
+        (None, None) => return Ok(None),
+        (Some(n), _) => {
+            if n == 0 || n > ipc::MAX_LOCAL {
+                return Err(invalid(&format!(
+                    "--plants must be 1 to {} on one host",
+                    ipc::MAX_LOCAL
+                )));
+            }
+            (n, None)
+        }
+        (None, Some(n)) => {
+            if n == 0 || n > frames::MAX_PLANTS {
+                return Err(invalid(&format!(
+                    "--plants-remote must be 1 to {}",
+                    frames::MAX_PLANTS
+                )));
+            }
+            let listen = mpo_link::fleet::Remote {
+                endpoints: args.fleet_listen.clone(),
+                tls,
+                // (a learner listens; it connects to nothing)
+                connect_timeout: Duration::ZERO,
+            };
+            crate::fleet::check_remote(&listen).map_err(|e| invalid(&e.0))?;
+            let run = match &args.fleet_run {
+                Some(r) => Some(mpo_link::RunId::parse(r).map_err(|e| invalid(&e.0))?),
+                None => None,
+            };
+            (n, Some(crate::fleet::RemoteOptions { listen, run }))
+        }
+    };
     let k = args.sync_every.unwrap_or(crate::fleet::DEFAULT_SYNC_EVERY);
     if k == 0 || k as usize > frames::MAX_BLOCK {
         return Err(invalid(&format!(
@@ -111,6 +140,7 @@ fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>,
         timeout: Duration::from_secs_f64(args.plant_timeout),
         max_lag: crate::fleet::DEFAULT_MAX_LAG,
         rate: args.plant_rate,
+        remote,
     }))
 }
 

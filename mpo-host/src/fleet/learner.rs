@@ -45,7 +45,8 @@ pub struct Member {
 
 /// The learner's end of a fleet.
 pub struct Fleet {
-    port: IpcLearner,
+    port: Box<dyn LearnerPort>,
+    run: RunId,
     tag: u64,
     incarnation: u64,
     opts: FleetOptions,
@@ -85,8 +86,14 @@ impl Fleet {
             // A paced plant needs K periods for a block: that is not silence.
             opts.timeout += Duration::from_secs_f64(opts.sync_every as f64 / r);
         }
-        let run = RunId::new();
-        let port = IpcLearner::open(&run)?;
+        let run = match opts.remote.as_ref().and_then(|r| r.run.clone()) {
+            Some(run) => run,
+            None => RunId::new(),
+        };
+        let port: Box<dyn LearnerPort> = match &opts.remote {
+            None => Box::new(IpcLearner::open(&run)?),
+            Some(r) => super::remote_learner(&run, &r.listen, opts.plants)?,
+        };
         let report = FleetReport {
             plants: opts.plants,
             schedule: match opts.schedule {
@@ -113,6 +120,7 @@ impl Fleet {
         Ok(Self {
             port,
             tag: frames::run_tag(run.as_str()),
+            run,
             incarnation: random_u64(),
             opts,
             identity,
@@ -136,7 +144,12 @@ impl Fleet {
 
     /// The run id plants join with (`mpo plant-worker --run`).
     pub fn run_id(&self) -> &str {
-        self.port.run().as_str()
+        self.run.as_str()
+    }
+
+    /// The transport's name (`iceoryx2`, `zenoh`).
+    pub fn transport(&self) -> &'static str {
+        self.port.name()
     }
 
     /// Starts plant `index` as `mpo plant-worker` (this program) with the task flags `task`
@@ -146,12 +159,7 @@ impl Fleet {
         let exe = std::env::current_exe().map_err(|e| spawn_err(format!("own executable: {e}")))?;
         let child = Command::new(exe)
             .arg("plant-worker")
-            .args([
-                "--run",
-                self.port.run().as_str(),
-                "--index",
-                &index.to_string(),
-            ])
+            .args(["--run", self.run.as_str(), "--index", &index.to_string()])
             .args(["--block-hint", &self.opts.sync_every.to_string()])
             .args(
                 self.opts
@@ -443,6 +451,14 @@ impl Fleet {
             self.report.ignored_frames += 1;
             return Ok(());
         };
+        let m = &self.members[i];
+        if m.live && m.incarnation == h.incarnation && mismatch(&hello.id, &self.identity).is_none()
+        {
+            // A repeated HELLO (the plant had not heard the WELCOME yet): answer it again.
+            let w = self.welcome_of(i, h.incarnation);
+            self.send(WELCOME, i as u32, &w)?;
+            return Ok(());
+        }
         let why = match mismatch(&hello.id, &self.identity) {
             Some(why) => Some(why),
             None if self.members[i].live => Some(format!(
@@ -471,12 +487,7 @@ impl Fleet {
             }
             return Ok(());
         }
-        let mut w = self.welcome;
-        w.plant_incarnation = h.incarnation;
-        w.collector = super::collector_of(self.seed, i);
-        w.env_seed = super::env_seed_of(self.seed, i);
-        w.mode = self.opts.schedule.code();
-        w.block = self.opts.sync_every;
+        let w = self.welcome_of(i, h.incarnation);
         self.send(WELCOME, i as u32, &w)?;
         let m = &mut self.members[i];
         m.live = true;
@@ -486,6 +497,17 @@ impl Fleet {
         self.events
             .push(format!("fleet: plant {i} joined (pid {})", hello.pid));
         Ok(())
+    }
+
+    /// The WELCOME of plant `i` (of incarnation `incarnation`).
+    fn welcome_of(&self, i: usize, incarnation: u64) -> Welcome {
+        let mut w = self.welcome;
+        w.plant_incarnation = incarnation;
+        w.collector = super::collector_of(self.seed, i);
+        w.env_seed = super::env_seed_of(self.seed, i);
+        w.mode = self.opts.schedule.code();
+        w.block = self.opts.sync_every;
+        w
     }
 
     /// The blocks received and not yet inserted (deterministic: one per live plant, in plant

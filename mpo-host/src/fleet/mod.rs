@@ -75,6 +75,78 @@ pub struct FleetOptions {
     /// Each plant's steps per second of wall clock (a robot's control rate); `None`: as fast
     /// as it steps.
     pub rate: Option<f64>,
+    /// Plants on other hosts over zenoh (`--plants-remote`): the learner listens and waits
+    /// for them instead of starting plant processes. `None`: plant processes of this host over
+    /// iceoryx2.
+    pub remote: Option<RemoteOptions>,
+}
+
+/// `--plants-remote N --fleet-listen ...`: where the learner listens and the run id its
+/// plants join.
+#[derive(Clone, Debug)]
+pub struct RemoteOptions {
+    /// The endpoints to listen on and the certificates.
+    pub listen: mpo_link::fleet::Remote,
+    /// The run id (`--fleet-run`; `None`: a fresh one, printed).
+    pub run: Option<mpo_link::RunId>,
+}
+
+/// Why a build without the `zenoh` feature cannot reach other hosts.
+pub const NO_ZENOH: &str = "this mpo was built without the `zenoh` feature (plants on other \
+     hosts): build it with `cargo build --release -p mpo-host --features zenoh`";
+
+/// The learner's end of the link to plants on other hosts.
+#[cfg(feature = "zenoh")]
+pub fn remote_learner(
+    run: &mpo_link::RunId,
+    remote: &mpo_link::fleet::Remote,
+    plants: usize,
+) -> Result<Box<dyn mpo_link::fleet::LearnerPort>, mpo_link::LinkError> {
+    Ok(Box::new(mpo_link::fleet::zenoh::ZenohLearner::open(
+        run, remote, plants,
+    )?))
+}
+
+/// The learner's end of the link to plants on other hosts (not in this build).
+#[cfg(not(feature = "zenoh"))]
+pub fn remote_learner(
+    _run: &mpo_link::RunId,
+    _remote: &mpo_link::fleet::Remote,
+    _plants: usize,
+) -> Result<Box<dyn mpo_link::fleet::LearnerPort>, mpo_link::LinkError> {
+    Err(mpo_link::LinkError(NO_ZENOH.into()))
+}
+
+/// A plant's end of the link to a learner on another host.
+#[cfg(feature = "zenoh")]
+pub fn remote_plant(
+    run: &mpo_link::RunId,
+    remote: &mpo_link::fleet::Remote,
+) -> Result<Box<dyn mpo_link::fleet::PlantPort>, mpo_link::LinkError> {
+    Ok(Box::new(mpo_link::fleet::zenoh::ZenohPlant::open(
+        run, remote,
+    )?))
+}
+
+/// A plant's end of the link to a learner on another host (not in this build).
+#[cfg(not(feature = "zenoh"))]
+pub fn remote_plant(
+    _run: &mpo_link::RunId,
+    _remote: &mpo_link::fleet::Remote,
+) -> Result<Box<dyn mpo_link::fleet::PlantPort>, mpo_link::LinkError> {
+    Err(mpo_link::LinkError(NO_ZENOH.into()))
+}
+
+/// Checks a zenoh link's endpoints and certificates (as far as this build can).
+#[cfg(feature = "zenoh")]
+pub fn check_remote(remote: &mpo_link::fleet::Remote) -> Result<(), mpo_link::LinkError> {
+    mpo_link::fleet::zenoh::check(remote)
+}
+
+/// Checks a zenoh link's endpoints and certificates (not in this build).
+#[cfg(not(feature = "zenoh"))]
+pub fn check_remote(_remote: &mpo_link::fleet::Remote) -> Result<(), mpo_link::LinkError> {
+    Err(mpo_link::LinkError(NO_ZENOH.into()))
 }
 
 /// Default steps per block: 50 divides the Control Suite's 1000-step episodes, so every

@@ -47,11 +47,17 @@ pub struct WorkerInit<'a> {
     pub spawned: bool,
     /// Steps per second of wall clock (`None`: unpaced).
     pub rate: Option<f64>,
+    /// A learner on another host, over zenoh (`--fleet-connect`); `None`: this host's, over
+    /// iceoryx2.
+    pub remote: Option<&'a mpo_link::fleet::Remote>,
 }
 
 /// How long a plant started by hand waits for the learner's answer to its HELLO, or for a
 /// round.
 const PATIENCE: Duration = Duration::from_secs(120);
+
+/// How often a plant repeats its HELLO until the learner answers.
+const HELLO_AGAIN: Duration = Duration::from_millis(500);
 
 /// What the learner says between blocks.
 struct Inbox<P: Params> {
@@ -253,7 +259,7 @@ impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
 
 /// The plant's end of the transport and its frame buffer.
 struct Wire {
-    port: IpcPlant,
+    port: Box<dyn PlantPort>,
     tag: u64,
     index: usize,
     incarnation: u64,
@@ -313,8 +319,13 @@ where
 {
     // SAFETY: getppid has no preconditions.
     let parent = unsafe { libc::getppid() };
-    let port =
-        IpcPlant::open(init.run, OBS, ACT, init.block_hint.max(1)).map_err(|e| e.to_string())?;
+    let port: Box<dyn PlantPort> = match init.remote {
+        None => Box::new(
+            IpcPlant::open(init.run, OBS, ACT, init.block_hint.max(1))
+                .map_err(|e| e.to_string())?,
+        ),
+        Some(r) => super::remote_plant(init.run, r).map_err(|e| e.to_string())?,
+    };
     let mut wire = Wire {
         port,
         tag: frames::run_tag(init.run.as_str()),
@@ -340,6 +351,7 @@ where
         spawned: init.spawned as u32,
     };
     wire.send(HELLO, &hello, &[])?;
+    let mut said = Instant::now();
     let w = loop {
         wire.drain(&mut inbox, 0)?;
         match inbox.welcome.take() {
@@ -349,6 +361,12 @@ where
         }
         if gone(&inbox, init.spawned, parent) {
             return Err(format!("no learner of run {} answered", init.run.as_str()));
+        }
+        if said.elapsed() >= HELLO_AGAIN {
+            // Over zenoh a frame sent before the other side's subscription reached this one
+            // goes nowhere: say it again (the learner answers a repeated HELLO again).
+            wire.send(HELLO, &hello, &[])?;
+            said = Instant::now();
         }
         wire.port.wait(Duration::from_millis(50));
     };

@@ -13,8 +13,35 @@ use core::time::Duration;
 
 pub mod frames;
 pub mod ipc;
+#[cfg(feature = "zenoh")]
+pub mod zenoh;
 
 use crate::service::LinkError;
+
+/// Where a fleet's zenoh link goes (`--fleet-listen` of the learner, `--fleet-connect` of a
+/// plant) and its certificates. Plain data, in every build; only a build with the `zenoh`
+/// feature can open it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Remote {
+    /// zenoh endpoints: `tcp/ADDR:PORT`, or `tls/ADDR:PORT` with [`Remote::tls`].
+    pub endpoints: Vec<String>,
+    /// Mutual TLS: both sides present a certificate signed by the same CA.
+    pub tls: Option<TlsFiles>,
+    /// A plant: how long it tries to reach the learner before giving up (a refused TLS
+    /// handshake is retried until then too).
+    pub connect_timeout: Duration,
+}
+
+/// The PEM files of one side of a mutual-TLS link.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TlsFiles {
+    /// The CA certificate that signs both sides' certificates (the only one trusted).
+    pub ca: std::path::PathBuf,
+    /// This side's certificate (the learner's names the address plants connect to).
+    pub cert: std::path::PathBuf,
+    /// This side's private key.
+    pub key: std::path::PathBuf,
+}
 
 /// The learner's end of a transport.
 pub trait LearnerPort {
