@@ -33,10 +33,11 @@ Inputs (repository, commit, path):
   `results/tdmpc2/<task>.csv` and `results/sac/<task>.csv`, columns `step,reward,seed`,
   `step` in environment steps (see reference.md).
 
-Usage (the default directories are where this session's fetch tool put the snapshots):
+Usage: clone the five repositories (`git clone https://github.com/<owner>/<name>`; a bare
+clone is enough: files are read at the commits above), then
 
     python3 docs/results/frontier_reference.py [--per-seed] \
-        [--simba DIR] [--simbav2 DIR] [--bro DIR] [--mrq DIR] [--tdmpc2 DIR]
+        --simba DIR --simbav2 DIR --bro DIR --mrq DIR --tdmpc2 DIR
 """
 
 import argparse
@@ -159,11 +160,11 @@ def table(title, columns):
 
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("--simba", default="/work/.mirror/SonyResearch+simba/repo")
-    p.add_argument("--simbav2", default="/work/.mirror/dojeon-ai+SimbaV2/repo")
-    p.add_argument("--bro", default="/work/.mirror/naumix+BiggerRegularizedOptimistic/repo")
-    p.add_argument("--mrq", default="/work/.mirror/facebookresearch+MRQ/repo")
-    p.add_argument("--tdmpc2", default="/work/.mirror/nicklashansen+tdmpc2/repo")
+    p.add_argument("--simba", required=True, metavar="DIR", help="a clone of SonyResearch/simba")
+    p.add_argument("--simbav2", required=True, metavar="DIR", help="a clone of dojeon-ai/SimbaV2")
+    p.add_argument("--bro", required=True, metavar="DIR", help="a clone of naumix/BiggerRegularizedOptimistic")
+    p.add_argument("--mrq", required=True, metavar="DIR", help="a clone of facebookresearch/MRQ")
+    p.add_argument("--tdmpc2", required=True, metavar="DIR", help="a clone of nicklashansen/tdmpc2")
     p.add_argument("--per-seed", action="store_true", help="also print every seed's value")
     a = p.parse_args()
 
