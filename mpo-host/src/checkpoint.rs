@@ -155,6 +155,29 @@ pub struct Meta {
     pub metrics: Vec<MetricsRow>,
     /// sha256 of the online actor and critic (see [`params_sha256`]).
     pub params_sha256: String,
+    /// A fleet's run id and its plants' streams (absent for a run collecting in-process).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fleet: Option<FleetRecord>,
+}
+
+/// What a checkpoint keeps of a fleet (`mpo train --plants`): a resumed learner joins the
+/// same run id, and each plant's process continues its streams where the plant's last
+/// inserted block left them (docs/fleet.md).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FleetRecord {
+    /// The run id plants join with.
+    pub run: String,
+    /// Each plant's streams, by index.
+    pub plants: Vec<PlantRecord>,
+}
+
+/// A plant's streams after its last inserted block.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PlantRecord {
+    /// Its collector stream (hex).
+    pub collector: String,
+    /// Resets of its environment (a new process replays them from the plant's seed).
+    pub resets: u64,
 }
 
 /// A task file as a checkpoint records it.
@@ -200,6 +223,7 @@ impl Meta {
             stats: StatsAccumulator::default(),
             metrics,
             params_sha256: String::new(),
+            fleet: None,
         }
     }
 }

@@ -196,6 +196,10 @@ pub struct PlantWorkerArgs {
     /// With --fleet-connect: the link's certificates.
     #[command(flatten)]
     pub fleet_tls: FleetTlsArgs,
+    /// Started by the learner (`mpo train --plants`): exit with it rather than wait for its
+    /// resumed self.
+    #[arg(long, hide = true)]
+    pub spawned: bool,
 }
 
 /// The certificates of a fleet's mutual-TLS link over zenoh (`tls/` endpoints): PEM files,
@@ -318,7 +322,9 @@ pub struct TrainArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Continue the run whose checkpoint is in DIR, bit-identically to an uninterrupted run.
-    /// Only --steps may differ from the checkpoint's configuration.
+    /// Only --steps may differ from the checkpoint's configuration. A fleet's run resumes
+    /// with its fleet flags given again (--plants ...); see docs/fleet.md for when it is
+    /// bit-identical.
     #[arg(long, value_name = "DIR")]
     pub resume: Option<PathBuf>,
     /// No progress bar (it is also hidden when stderr is not a terminal).
@@ -357,15 +363,21 @@ pub struct TrainArgs {
     pub plant: crate::plant::PlantArgs,
     /// Collect with N plant processes (each stepping its own copy of the task's environment
     /// with the policy it last received) instead of in this process; the learner stays here
-    /// and keeps the row's updates per inserted transition (docs/fleet.md).
-    #[arg(long, value_name = "N", conflicts_with_all = ["device", "resume"])]
+    /// and keeps the row's updates per inserted transition (docs/fleet.md). With --resume,
+    /// the plants continue their streams from the checkpoint.
+    #[arg(long, value_name = "N", conflicts_with = "device")]
     pub plants: Option<usize>,
     /// Collect with N plants on other hosts, over zenoh, instead of starting plant processes:
     /// the learner listens on --fleet-listen and waits (up to --plant-timeout) for N plants to
     /// join, each started on its host as `mpo plant-worker --fleet-connect ENDPOINT --run
     /// RUN_ID --index I` with this run's task flags (the learner prints the command). Needs a
     /// build with the `zenoh` feature (docs/fleet.md).
-    #[arg(long, value_name = "N", conflicts_with_all = ["device", "resume"], requires = "fleet_listen")]
+    #[arg(
+        long,
+        value_name = "N",
+        conflicts_with = "device",
+        requires = "fleet_listen"
+    )]
     pub plants_remote: Option<usize>,
     /// With --plants-remote: a zenoh endpoint to listen on, `tcp/ADDR:PORT`, or
     /// `tls/ADDR:PORT` with --fleet-ca/--fleet-cert/--fleet-key (mutual TLS: only plants with
@@ -373,7 +385,8 @@ pub struct TrainArgs {
     #[arg(long, value_name = "ENDPOINT", requires = "plants_remote")]
     pub fleet_listen: Vec<String>,
     /// With --plants-remote: the run id the plants join with (letters, digits, '-') [default:
-    /// a fresh one, printed].
+    /// with --resume the resumed run's (its plants join the resumed learner by themselves),
+    /// otherwise a fresh one, printed].
     #[arg(long, value_name = "RUN_ID", requires = "plants_remote")]
     pub fleet_run: Option<String>,
     /// With --plants-remote: the link's certificates.
@@ -397,6 +410,10 @@ pub struct TrainArgs {
     /// the free schedule takes the learner's CPU) [default: unpaced].
     #[arg(long, value_name = "HZ", requires = "fleet")]
     pub plant_rate: Option<f64>,
+    /// With --plants: times the learner starts a plant process again after it died or hung
+    /// (each plant; the new process continues the plant's streams and joins the next round).
+    #[arg(long, value_name = "N", default_value_t = crate::fleet::DEFAULT_RESTARTS, requires = "fleet")]
+    pub plant_restarts: u32,
 }
 
 /// `mpo render`.

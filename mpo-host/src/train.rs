@@ -171,7 +171,37 @@ fn start_fleet(
     let s = &req.settings;
     let identity = crate::fleet::identity(&req.task, &s.net, &z, policy_len);
     let welcome = crate::fleet::welcome_of(s);
-    let mut fleet = crate::fleet::learner::Fleet::open(opts.clone(), identity, welcome, s.seed)?;
+    // A fleet's checkpoint has its plants' streams; an in-process run's streams go on in
+    // plant 0.
+    let resumed = req.resume.as_ref().map(|v| match &v.meta.fleet {
+        Some(f) => f.clone(),
+        None => crate::checkpoint::FleetRecord {
+            run: String::new(),
+            plants: vec![crate::checkpoint::PlantRecord {
+                collector: v.meta.collector_rng.clone(),
+                resets: v.meta.episodes,
+            }],
+        },
+    });
+    let resumed = resumed.as_ref();
+    let mut opts = opts.clone();
+    if opts.run.is_none() && opts.remote.is_some() {
+        // Plants on other hosts that worked for the learner resumed from know its run id.
+        opts.run = resumed.and_then(|r| mpo_link::RunId::parse(&r.run).ok());
+    }
+    let opts = &opts;
+    if let Some(r) = resumed {
+        eprintln!(
+            "fleet: {} plant(s) continue their streams from the checkpoint{}",
+            r.plants.len().min(opts.plants),
+            match r.run.is_empty() {
+                true => " (of a run that collected in-process: plant 0 continues its)".into(),
+                false => format!(" (fleet run id {})", r.run),
+            }
+        );
+    }
+    let mut fleet =
+        crate::fleet::learner::Fleet::open(opts.clone(), identity, welcome, s.seed, resumed)?;
     let task_args = crate::link::ControllerTarget::of(s).args();
     match &opts.remote {
         None => {

@@ -263,6 +263,7 @@ impl<
             },
             stats: self.stats.clone(),
             params_sha256: checkpoint::params_sha256(&l.live.actor, &l.live.critic),
+            fleet: self.fleet.as_ref().map(Fleet::record),
             ..base
         }
     }

@@ -127,6 +127,26 @@ impl RunId {
         out
     }
 
+    /// Takes the group's and others' permissions off every file of this run. iceoryx2 makes
+    /// its node counter (`*.global_mgmt`) readable and writable by everyone, as it is shared
+    /// by every user of a domain; with a per-run prefix the domain is the run, which is its
+    /// user's alone (its other files are created owner-only). Each side calls this once its
+    /// services are open, so the window in which the counter is open to others is the time
+    /// it takes to open them.
+    pub fn restrict_files(&self) {
+        use std::os::unix::fs::PermissionsExt;
+        for f in self.files() {
+            let Ok(meta) = std::fs::symlink_metadata(&f) else {
+                continue;
+            };
+            let mode = meta.permissions().mode();
+            if meta.is_file() && mode & 0o077 != 0 {
+                let _ =
+                    std::fs::set_permissions(&f, std::fs::Permissions::from_mode(mode & !0o077));
+            }
+        }
+    }
+
     /// Removes iceoryx2's persistent node counter of this run once no other file of the run
     /// remains (every live node and service has files, so none is left: this side was the
     /// last one). iceoryx2 keeps that segment forever by design, as it is shared by every node
@@ -256,6 +276,7 @@ impl Services {
             .max_listeners(4)
             .open_or_create()
             .map_err(err("event service"))?;
+        run.restrict_files();
         Ok(Self {
             node,
             obs,

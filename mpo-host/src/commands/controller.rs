@@ -47,9 +47,9 @@ pub fn plant_worker(args: &crate::cli::PlantWorkerArgs) -> Result<u64, Error> {
         sizes: row.sizes,
         block_hint: args.block_hint,
         rate: args.rate,
-        // Over zenoh the plant runs on its own host, started by hand: it gives up when the
-        // learner stays silent (the learner started a plant of its host itself).
-        spawned: remote.is_none(),
+        // A plant the learner started exits with it; one started by hand (a robot's program,
+        // or any plant over zenoh) follows the run's learner through drops and restarts.
+        spawned: args.spawned && remote.is_none(),
         remote: remote.as_ref(),
     };
     (instance.plant)(&init).map_err(Error::Plant)

@@ -80,6 +80,7 @@ fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>,
             "--fleet-ca/--fleet-cert/--fleet-key secure --plants-remote's link",
         ));
     }
+    let mut run = None;
     let (plants, remote) = match (args.plants, args.plants_remote) {
         (None, None) => return Ok(None),
         (Some(n), _) => {
@@ -105,11 +106,10 @@ fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>,
                 connect_timeout: Duration::ZERO,
             };
             crate::fleet::check_remote(&listen).map_err(|e| invalid(&e.0))?;
-            let run = match &args.fleet_run {
-                Some(r) => Some(mpo_link::RunId::parse(r).map_err(|e| invalid(&e.0))?),
-                None => None,
-            };
-            (n, Some(crate::fleet::RemoteOptions { listen, run }))
+            if let Some(r) = &args.fleet_run {
+                run = Some(mpo_link::RunId::parse(r).map_err(|e| invalid(&e.0))?);
+            }
+            (n, Some(crate::fleet::RemoteOptions { listen }))
         }
     };
     let k = args.sync_every.unwrap_or(crate::fleet::DEFAULT_SYNC_EVERY);
@@ -140,6 +140,8 @@ fn fleet_options(args: &TrainArgs) -> Result<Option<crate::fleet::FleetOptions>,
         timeout: Duration::from_secs_f64(args.plant_timeout),
         max_lag: crate::fleet::DEFAULT_MAX_LAG,
         rate: args.plant_rate,
+        restarts: args.plant_restarts,
+        run,
         remote,
     }))
 }

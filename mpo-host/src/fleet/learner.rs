@@ -11,13 +11,14 @@ use mpo_link::LinkError;
 use mpo_link::RunId;
 use mpo_link::fleet::LearnerPort;
 use mpo_link::fleet::frames::{
-    self, AT_BOUNDARY, BLOCK, BYE, BlockHead, DROPPED, GO, Go, HELLO, Header, Hello, Identity,
-    PARAMS, REFUSE, STOP, Text, WELCOME, Welcome,
+    self, ANNOUNCE, AT_BOUNDARY, BLOCK, BYE, BlockHead, DROPPED, GO, Go, HELLO, Header, Hello,
+    Identity, PARAMS, REFUSE, STOP, Text, WELCOME, Welcome,
 };
 use mpo_link::fleet::ipc::IpcLearner;
 use mpo_link::messages::{CHECKSUM_SEED, CHUNK, MAX_BLOCKS, ParamChunk, checksum};
 
 use super::{FleetError, FleetOptions, FleetReport, FleetSchedule, mismatch};
+use crate::checkpoint::{FleetRecord, PlantRecord};
 
 /// One plant of the fleet, as the learner sees it.
 pub struct Member {
@@ -41,6 +42,20 @@ pub struct Member {
     seen_version: u64,
     /// When the learner last heard from it.
     heard: Instant,
+    /// Its collector stream after its last block (a (re)joining process starts from it).
+    collector: [u8; 32],
+    /// Resets of its environment up to its last block (a (re)joining process replays them).
+    resets: u64,
+    /// Times it joined.
+    joins: u64,
+    /// The WELCOME it was sent last (a repeated HELLO is answered with it again).
+    welcome: Welcome,
+    /// In the current round (it was live at the round's GO).
+    in_round: bool,
+    /// Times this learner restarted its process.
+    restarts: u32,
+    /// Restarted and not joined yet: since when.
+    restarting: Option<Instant>,
 }
 
 /// The learner's end of a fleet.
@@ -71,25 +86,30 @@ pub struct Fleet {
     events: Vec<String>,
     /// The first refusal while the fleet is starting (it fails the start).
     refused: Option<FleetError>,
+    /// The task flags plant processes are started with (for restarts).
+    task_args: Vec<String>,
+    /// A plant joined a started run: send the policy again (it has none).
+    resend: bool,
 }
 
 impl Fleet {
-    /// Opens the learner's side of a fresh run id for plants of `identity`; `welcome` is the
-    /// template of every plant's WELCOME (its per-plant fields are filled at admission).
+    /// Opens the learner's side of the run id `opts.run` (a fresh one when `None`) for
+    /// plants of `identity`; `welcome` is the template of every plant's WELCOME (its
+    /// per-plant fields are filled at admission). `resumed`: the fleet's record in the
+    /// checkpoint resumed from, so each plant continues its streams where its last inserted
+    /// block left them (plants beyond the record start afresh).
     pub fn open(
         mut opts: FleetOptions,
         identity: Identity,
         welcome: Welcome,
         seed: u32,
+        resumed: Option<&FleetRecord>,
     ) -> Result<Self, FleetError> {
         if let Some(r) = opts.rate {
             // A paced plant needs K periods for a block: that is not silence.
             opts.timeout += Duration::from_secs_f64(opts.sync_every as f64 / r);
         }
-        let run = match opts.remote.as_ref().and_then(|r| r.run.clone()) {
-            Some(run) => run,
-            None => RunId::new(),
-        };
+        let run = opts.run.clone().unwrap_or_default();
         let port: Box<dyn LearnerPort> = match &opts.remote {
             None => Box::new(IpcLearner::open(&run)?),
             Some(r) => super::remote_learner(&run, &r.listen, opts.plants)?,
@@ -103,20 +123,40 @@ impl Fleet {
             sync_every: opts.sync_every,
             ..Default::default()
         };
+        let record = |i: usize| -> Result<([u8; 32], u64), FleetError> {
+            match resumed.and_then(|r| r.plants.get(i)) {
+                Some(p) => crate::checkpoint::unhex32(&p.collector)
+                    .map(|c| (c, p.resets))
+                    .ok_or_else(|| {
+                        LinkError(format!("the checkpoint's plant {i}: bad collector")).into()
+                    }),
+                None => Ok((super::collector_of(seed, i), 0)),
+            }
+        };
         let members = (0..opts.plants)
-            .map(|index| Member {
-                index,
-                child: None,
-                pid: 0,
-                incarnation: 0,
-                live: false,
-                episode: 0,
-                at_boundary: true,
-                next_block: 0,
-                seen_version: 0,
-                heard: Instant::now(),
+            .map(|index| {
+                let (collector, resets) = record(index)?;
+                Ok(Member {
+                    index,
+                    child: None,
+                    pid: 0,
+                    incarnation: 0,
+                    live: false,
+                    episode: 0,
+                    at_boundary: true,
+                    next_block: 0,
+                    seen_version: 0,
+                    heard: Instant::now(),
+                    collector,
+                    resets,
+                    joins: 0,
+                    welcome: bytemuck::Zeroable::zeroed(),
+                    in_round: false,
+                    restarts: 0,
+                    restarting: None,
+                })
             })
-            .collect();
+            .collect::<Result<_, FleetError>>()?;
         Ok(Self {
             port,
             tag: frames::run_tag(run.as_str()),
@@ -139,6 +179,8 @@ impl Fleet {
             latency: (0, 0, 0),
             events: Vec::new(),
             refused: None,
+            task_args: Vec::new(),
+            resend: false,
         })
     }
 
@@ -159,7 +201,8 @@ impl Fleet {
         let exe = std::env::current_exe().map_err(|e| spawn_err(format!("own executable: {e}")))?;
         let child = Command::new(exe)
             .arg("plant-worker")
-            .args(["--run", self.run.as_str(), "--index", &index.to_string()])
+            .args(["--spawned", "--run", self.run.as_str()])
+            .args(["--index", &index.to_string()])
             .args(["--block-hint", &self.opts.sync_every.to_string()])
             .args(
                 self.opts
@@ -174,6 +217,7 @@ impl Fleet {
             .spawn()
             .map_err(|e| spawn_err(e.to_string()))?;
         self.members[index].child = Some(child);
+        self.task_args = task.to_vec();
         Ok(())
     }
 
@@ -181,7 +225,15 @@ impl Fleet {
     /// refused plant, or one that exits before joining, fails the start.
     pub fn admit(&mut self, timeout: Duration) -> Result<(), FleetError> {
         let t0 = Instant::now();
+        let mut announced: Option<Instant> = None;
         while self.members.iter().any(|m| !m.live) {
+            if announced.is_none_or(|t| t.elapsed() >= Duration::from_millis(500)) {
+                // Plants of this run that worked for a previous incarnation of the learner
+                // (it died and this one resumed) hear it and join again.
+                let t: Text = bytemuck::Zeroable::zeroed();
+                self.send(ANNOUNCE, u32::MAX, &t)?;
+                announced = Some(Instant::now());
+            }
             self.pump()?;
             if let Some(e) = self.refused.take() {
                 return Err(e);
@@ -244,7 +296,7 @@ impl Fleet {
     /// and K steps per plant were inserted since the last send (so parameters go out at the
     /// rate the plants take them, not once per block).
     pub fn params_due(&self, dirty: bool, env_steps: u64) -> bool {
-        if self.version == 0 {
+        if self.version == 0 || self.resend {
             return true;
         }
         match self.opts.schedule {
@@ -275,6 +327,7 @@ impl Fleet {
             self.port.send_down(&self.down)?;
         }
         self.sent_at = env_steps;
+        self.resend = false;
         self.report.versions = self.version;
         if self.opts.schedule == FleetSchedule::Free {
             // The free schedule's plants read the learner's progress from it (the warm-up).
@@ -320,6 +373,8 @@ impl Fleet {
         let now = Instant::now();
         for m in self.members.iter_mut() {
             m.heard = now;
+            // A plant joining during the round takes part from the next one.
+            m.in_round = m.live;
         }
         self.send(GO, u32::MAX, &go)?;
         loop {
@@ -329,7 +384,7 @@ impl Fleet {
             let waiting = self
                 .members
                 .iter()
-                .any(|m| m.live && !self.inbox.iter().any(|(i, _)| *i == m.index));
+                .any(|m| m.live && m.in_round && !self.inbox.iter().any(|(i, _)| *i == m.index));
             if !waiting {
                 break;
             }
@@ -342,7 +397,11 @@ impl Fleet {
     }
 
     fn require_plants(&self) -> Result<(), FleetError> {
-        match self.members.iter().any(|m| m.live) {
+        match self
+            .members
+            .iter()
+            .any(|m| m.live || m.restarting.is_some())
+        {
             true => Ok(()),
             false => Err(FleetError::NoPlants(format!(
                 "{} dropped; see the log above",
@@ -351,39 +410,65 @@ impl Fleet {
         }
     }
 
-    /// Drops plants whose process exited or that were silent past the timeout.
+    /// Drops plants whose process exited or that were silent past the timeout, and gives up
+    /// on restarted processes that exited or stayed silent before joining.
     fn check_health(&mut self) {
         let timeout = self.opts.timeout;
         let mut drop = Vec::new();
-        for m in self.members.iter_mut().filter(|m| m.live) {
-            if let Some(c) = m.child.as_mut()
-                && let Ok(Some(status)) = c.try_wait()
-            {
-                drop.push((m.index, format!("its process exited ({status})")));
-            } else if m.heard.elapsed() > timeout {
-                drop.push((
-                    m.index,
-                    format!("silent for {:.0} s", timeout.as_secs_f64()),
-                ));
+        let mut failed = Vec::new();
+        for m in self.members.iter_mut() {
+            let exited = m.child.as_mut().and_then(|c| c.try_wait().ok().flatten());
+            if m.live {
+                if let Some(status) = exited {
+                    drop.push((m.index, format!("its process exited ({status})")));
+                } else if m.heard.elapsed() > timeout {
+                    drop.push((
+                        m.index,
+                        format!("silent for {:.0} s", timeout.as_secs_f64()),
+                    ));
+                }
+            } else if let Some(since) = m.restarting {
+                if let Some(status) = exited {
+                    failed.push((m.index, format!("exited before joining ({status})")));
+                } else if since.elapsed() > timeout {
+                    failed.push((
+                        m.index,
+                        format!("did not join within {:.0} s", timeout.as_secs_f64()),
+                    ));
+                }
             }
         }
         for (i, why) in drop {
             self.drop_member(i, &why);
         }
+        for (i, why) in failed {
+            let m = &mut self.members[i];
+            m.restarting = None;
+            if let Some(mut c) = m.child.take() {
+                let _ = c.kill();
+                let _ = c.wait();
+            }
+            self.events
+                .push(format!("fleet: plant {i}'s restarted process {why}"));
+            self.restart(i);
+        }
     }
 
     /// Drops plant `i` (tells it, kills a process this learner started, clears what it left
-    /// registered) and logs why.
+    /// registered), logs why, and restarts a process this learner started (up to
+    /// `opts.restarts` times per plant).
     fn drop_member(&mut self, i: usize, why: &str) {
         let m = &mut self.members[i];
         m.live = false;
-        let pid = m.pid;
+        let (pid, incarnation) = (m.pid, m.incarnation);
+        let started = m.child.is_some();
         if let Some(mut c) = m.child.take() {
             let _ = c.kill();
             let _ = c.wait();
         }
         self.report.dropped += 1;
         let mut t: Text = bytemuck::Zeroable::zeroed();
+        t.plant_incarnation = incarnation;
         frames::put_text(&mut t.message, why);
         let _ = self.send(DROPPED, i as u32, &t);
         self.port.cleanup_dead();
@@ -392,6 +477,35 @@ impl Fleet {
         self.events.push(format!(
             "fleet: plant {i} (pid {pid}) dropped: {why}; {left} plant(s) go on"
         ));
+        if started {
+            self.restart(i);
+        }
+    }
+
+    /// Starts plant `i`'s process again, when its restarts are not used up; it joins the
+    /// round after it said HELLO, continuing its streams.
+    fn restart(&mut self, i: usize) {
+        let (done, limit) = (self.members[i].restarts, self.opts.restarts);
+        if done >= limit {
+            self.events.push(format!(
+                "fleet: plant {i} is not restarted (it was restarted {done} time(s), --plant-restarts {limit})"
+            ));
+            return;
+        }
+        let args = self.task_args.clone();
+        match self.spawn(i, &args) {
+            Ok(()) => {
+                let m = &mut self.members[i];
+                m.restarts += 1;
+                m.restarting = Some(Instant::now());
+                self.report.restarted += 1;
+                self.events.push(format!(
+                    "fleet: plant {i} restarted (restart {} of {limit})",
+                    done + 1
+                ));
+            }
+            Err(e) => self.events.push(format!("fleet: {e}")),
+        }
     }
 
     /// Drains the frames received: HELLOs are answered, BYEs drop their plant, blocks go to
@@ -445,69 +559,117 @@ impl Fleet {
         Ok(())
     }
 
-    /// Answers a HELLO: WELCOME with the plant's streams, or REFUSE with why.
+    /// Answers a HELLO: WELCOME with the plant's streams, or REFUSE with why. A plant may
+    /// join at any time: late, again after a drop, as a new process of a live plant (the
+    /// old one is dropped), or after this learner resumed the run its previous incarnation
+    /// ran.
     fn hello(&mut self, i: usize, h: &Header, body: &[u8]) -> Result<(), FleetError> {
         let Ok(hello) = frames::read::<Hello>(body) else {
             self.report.ignored_frames += 1;
             return Ok(());
         };
+        if let Some(why) = mismatch(&hello.id, &self.identity) {
+            return self.refuse(i, h, &hello, why);
+        }
         let m = &self.members[i];
-        if m.live && m.incarnation == h.incarnation && mismatch(&hello.id, &self.identity).is_none()
-        {
+        if m.live && m.incarnation == h.incarnation {
             // A repeated HELLO (the plant had not heard the WELCOME yet): answer it again.
-            let w = self.welcome_of(i, h.incarnation);
+            let w = m.welcome;
             self.send(WELCOME, i as u32, &w)?;
             return Ok(());
         }
-        let why = match mismatch(&hello.id, &self.identity) {
-            Some(why) => Some(why),
-            None if self.members[i].live => Some(format!(
-                "plant {i} has joined already (rejoining is not built yet)"
-            )),
-            None if self.version > 0 => {
-                Some("the run has started (late joining is not built yet)".into())
-            }
-            None => None,
-        };
-        if let Some(why) = why {
-            let mut t: Text = bytemuck::Zeroable::zeroed();
-            t.plant_incarnation = h.incarnation;
-            frames::put_text(&mut t.message, &why);
-            self.send(REFUSE, i as u32, &t)?;
-            self.report.refused += 1;
-            self.events.push(format!(
-                "fleet: plant {i} (pid {}) refused: {why}",
-                hello.pid
-            ));
-            if self.version == 0 && self.refused.is_none() {
-                self.refused = Some(FleetError::Refused {
-                    index: i,
-                    message: why,
-                });
-            }
-            return Ok(());
+        if m.live {
+            self.drop_member(
+                i,
+                &format!("a new process of the plant (pid {}) joins", hello.pid),
+            );
         }
         let w = self.welcome_of(i, h.incarnation);
         self.send(WELCOME, i as u32, &w)?;
+        let started = self.version > 0;
         let m = &mut self.members[i];
+        let again = m.joins > 0 || (hello.learner != 0 && hello.learner != self.incarnation);
         m.live = true;
         m.pid = hello.pid;
         m.incarnation = h.incarnation;
         m.heard = Instant::now();
-        self.events
-            .push(format!("fleet: plant {i} joined (pid {})", hello.pid));
+        m.welcome = w;
+        m.joins += 1;
+        m.in_round = false;
+        m.restarting = None;
+        m.next_block = 0;
+        m.seen_version = 0;
+        m.at_boundary = true;
+        // It has no policy yet: the next round (or block) sends it.
+        self.resend |= started;
+        let what = match again {
+            true => {
+                self.report.rejoined += 1;
+                "rejoined"
+            }
+            false => "joined",
+        };
+        self.events.push(format!(
+            "fleet: plant {i} {what} (pid {}, {} environment resets to replay)",
+            hello.pid, w.episodes
+        ));
         Ok(())
     }
 
-    /// The WELCOME of plant `i` (of incarnation `incarnation`).
+    /// Refuses a HELLO (another task, sizes or task file); before the run started, the
+    /// refusal fails the start.
+    fn refuse(
+        &mut self,
+        i: usize,
+        h: &Header,
+        hello: &Hello,
+        why: String,
+    ) -> Result<(), FleetError> {
+        let mut t: Text = bytemuck::Zeroable::zeroed();
+        t.plant_incarnation = h.incarnation;
+        frames::put_text(&mut t.message, &why);
+        self.send(REFUSE, i as u32, &t)?;
+        self.report.refused += 1;
+        self.events.push(format!(
+            "fleet: plant {i} (pid {}) refused: {why}",
+            hello.pid
+        ));
+        if self.version == 0 && self.refused.is_none() {
+            self.refused = Some(FleetError::Refused {
+                index: i,
+                message: why,
+            });
+        }
+        Ok(())
+    }
+
+    /// The WELCOME of plant `i` (of incarnation `incarnation`): its streams where its last
+    /// inserted block left them (its seeds' start when it has sent none).
     fn welcome_of(&self, i: usize, incarnation: u64) -> Welcome {
+        let m = &self.members[i];
         let mut w = self.welcome;
         w.plant_incarnation = incarnation;
-        w.collector = super::collector_of(self.seed, i);
+        w.collector = m.collector;
+        w.episodes = m.resets;
         w.env_seed = super::env_seed_of(self.seed, i);
         w.mode = self.opts.schedule.code();
         w.block = self.opts.sync_every;
         w
+    }
+
+    /// What a checkpoint keeps of the fleet: the run id and each plant's streams.
+    pub fn record(&self) -> FleetRecord {
+        FleetRecord {
+            run: self.run.as_str().to_string(),
+            plants: self
+                .members
+                .iter()
+                .map(|m| PlantRecord {
+                    collector: crate::checkpoint::hex(&m.collector),
+                    resets: m.resets,
+                })
+                .collect(),
+        }
     }
 
     /// The blocks received and not yet inserted (deterministic: one per live plant, in plant
@@ -555,6 +717,9 @@ impl Fleet {
             return None;
         }
         let m = &mut self.members[i];
+        // Where a process of this plant joining later continues its streams.
+        m.collector = head.collector;
+        m.resets = head.episodes;
         if head.round > m.next_block && self.opts.schedule == FleetSchedule::Free {
             self.report.lost_blocks += head.round - m.next_block;
         }

@@ -75,20 +75,22 @@ pub struct FleetOptions {
     /// Each plant's steps per second of wall clock (a robot's control rate); `None`: as fast
     /// as it steps.
     pub rate: Option<f64>,
+    /// Times the learner restarts each plant process it started, when it dies or hangs
+    /// (`--plant-restarts`).
+    pub restarts: u32,
+    /// The run id plants join with (`--fleet-run`, or a resumed run's); `None`: a fresh one.
+    pub run: Option<mpo_link::RunId>,
     /// Plants on other hosts over zenoh (`--plants-remote`): the learner listens and waits
     /// for them instead of starting plant processes. `None`: plant processes of this host over
     /// iceoryx2.
     pub remote: Option<RemoteOptions>,
 }
 
-/// `--plants-remote N --fleet-listen ...`: where the learner listens and the run id its
-/// plants join.
+/// `--plants-remote N --fleet-listen ...`: where the learner listens.
 #[derive(Clone, Debug)]
 pub struct RemoteOptions {
     /// The endpoints to listen on and the certificates.
     pub listen: mpo_link::fleet::Remote,
-    /// The run id (`--fleet-run`; `None`: a fresh one, printed).
-    pub run: Option<mpo_link::RunId>,
 }
 
 /// Why a build without the `zenoh` feature cannot reach other hosts.
@@ -155,6 +157,9 @@ pub const DEFAULT_SYNC_EVERY: u32 = 50;
 
 /// Default `--plant-timeout` (generous: the machines this runs on are shared).
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Default `--plant-restarts`.
+pub const DEFAULT_RESTARTS: u32 = 3;
 
 /// Default `max_lag` of the free schedule, in policy versions.
 pub const DEFAULT_MAX_LAG: u64 = 100;
@@ -277,6 +282,11 @@ pub struct FleetReport {
     pub versions: u64,
     /// Plants dropped (died, hung, left); the run went on without them.
     pub dropped: u64,
+    /// Plant processes the learner restarted after a drop.
+    pub restarted: u64,
+    /// Joins of a plant that had joined before (after a drop or a restart), or that worked
+    /// for a previous incarnation of the learner (a resumed run).
+    pub rejoined: u64,
     /// Plants refused (another task, sizes or protocol).
     pub refused: u64,
     /// Blocks dropped for acting with a policy more than `max_lag` versions old (free).

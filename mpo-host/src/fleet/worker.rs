@@ -20,8 +20,8 @@ use mpo_link::RunId;
 use mpo_link::controller::Assembler;
 use mpo_link::fleet::PlantPort;
 use mpo_link::fleet::frames::{
-    self, AT_BOUNDARY, BLOCK, BYE, BlockHead, DROPPED, FIRST, GO, Go, HELLO, Header, Hello, LAST,
-    PARAMS, REFUSE, STOP, Text, WELCOME, Welcome,
+    self, ANNOUNCE, AT_BOUNDARY, BLOCK, BYE, BlockHead, DROPPED, FIRST, GO, Go, HELLO, Header,
+    Hello, LAST, PARAMS, REFUSE, STOP, Text, WELCOME, Welcome,
 };
 use mpo_link::fleet::ipc::IpcPlant;
 use mpo_link::messages::ParamChunk;
@@ -71,6 +71,11 @@ struct Inbox<P: Params> {
     go_steps: u64,
     welcome: Option<Result<Welcome, String>>,
     stop: Option<String>,
+    /// Why this plant is to join again: the learner dropped it, or another incarnation of
+    /// the run's learner (a resumed one) speaks.
+    rejoin: Option<String>,
+    /// The incarnation of the learner that welcomed this plant (0: none yet).
+    learner: u64,
     heard: Instant,
     /// The newest version's latency: from the learner's send of its last block to this
     /// plant having it assembled and in use (ns, `CLOCK_MONOTONIC` of both processes).
@@ -78,6 +83,26 @@ struct Inbox<P: Params> {
 }
 
 impl<P: Params> Inbox<P> {
+    /// Nothing heard yet: no policy, no round, no learner.
+    fn new() -> Self
+    where
+        P: bytemuck::Zeroable,
+    {
+        Self {
+            asm: Assembler::new(bytemuck::zeroed_box()),
+            policy: bytemuck::zeroed_box(),
+            version: 0,
+            go: None,
+            go_steps: 0,
+            welcome: None,
+            stop: None,
+            rejoin: None,
+            learner: 0,
+            heard: Instant::now(),
+            latency_ns: 0,
+        }
+    }
+
     fn frame(&mut self, f: &[u8], tag: u64, index: usize, incarnation: u64, steps: u64) {
         let Ok((h, body)) = frames::parse(f, tag) else {
             return;
@@ -86,6 +111,14 @@ impl<P: Params> Inbox<P> {
             return;
         }
         self.heard = Instant::now();
+        if self.learner != 0
+            && h.incarnation != self.learner
+            && matches!(h.kind, GO | PARAMS | ANNOUNCE)
+        {
+            // The learner this plant worked for is gone; its resumed self waits for plants.
+            self.rejoin = Some("another incarnation of the run's learner speaks".into());
+            return;
+        }
         match h.kind {
             PARAMS => {
                 if let Ok(chunk) = frames::read::<ParamChunk>(body)
@@ -107,6 +140,7 @@ impl<P: Params> Inbox<P> {
                     && w.plant_incarnation == incarnation
                 {
                     self.welcome = Some(Ok(w));
+                    self.learner = h.incarnation;
                 }
             }
             REFUSE => {
@@ -118,10 +152,12 @@ impl<P: Params> Inbox<P> {
             }
             STOP => self.stop = Some("the learner stopped the run".into()),
             DROPPED => {
-                let why = frames::read::<Text>(body)
-                    .map(|t| frames::text_of(&t.message))
-                    .unwrap_or_default();
-                self.stop = Some(format!("the learner dropped this plant: {why}"));
+                if let Ok(t) = frames::read::<Text>(body)
+                    && (t.plant_incarnation == incarnation || t.plant_incarnation == 0)
+                {
+                    let why = frames::text_of(&t.message);
+                    self.rejoin = Some(format!("the learner dropped this plant: {why}"));
+                }
             }
             _ => {}
         }
@@ -137,7 +173,8 @@ pub struct Stepper<const OBS: usize, const ACT: usize> {
     next64: [f64; OBS],
     act64: [f64; ACT],
     in_episode: bool,
-    episodes: u64,
+    /// Resets of the environment so far (those replayed at the start included).
+    resets: u64,
     std_floor: f32,
     action_penalty: f32,
     /// The block's records (little-endian words).
@@ -149,11 +186,17 @@ pub struct Stepper<const OBS: usize, const ACT: usize> {
 }
 
 impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
-    /// A plant of `task` as `w` configures it (environment seed, collector stream, noise,
-    /// std floor, action penalty, K), unpaced at `rate` `None`.
+    /// A plant of `task` as `w` configures it (environment seed and the resets to replay,
+    /// collector stream, noise, std floor, action penalty, K), unpaced at `rate` `None`.
     pub fn new(task: &TaskDef, w: &Welcome, rate: Option<f64>) -> Result<Self, String> {
         let k = w.block.max(1) as usize;
-        let env = crate::plant::make(task, w.env_seed).map_err(|e| e.to_string())?;
+        let mut env = crate::plant::make(task, w.env_seed).map_err(|e| e.to_string())?;
+        // The environment's random state advances once per reset: replaying the resets of
+        // the plant's previous processes continues its stream (no initial state repeats).
+        let mut obs64 = [0.0; OBS];
+        for _ in 0..w.episodes {
+            env.reset(&mut obs64);
+        }
         let mut explore: Box<Explorer<ACT>> = bytemuck::zeroed_box();
         explore.init(
             w.collector,
@@ -165,11 +208,11 @@ impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
         Ok(Self {
             env,
             explore,
-            obs64: [0.0; OBS],
+            obs64,
             next64: [0.0; OBS],
             act64: [0.0; ACT],
             in_episode: false,
-            episodes: 0,
+            resets: w.episodes,
             std_floor: w.std_floor,
             action_penalty: w.action_penalty,
             records: Vec::with_capacity(4 * k * frames::record_words(OBS, ACT)),
@@ -209,6 +252,7 @@ impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
             self.env.reset(&mut self.obs64);
             self.explore.begin_episode();
             self.in_episode = true;
+            self.resets += 1;
             flags |= FIRST;
         }
         let mut obs = [0f32; OBS];
@@ -238,7 +282,6 @@ impl<const OBS: usize, const ACT: usize> Stepper<OBS, ACT> {
         core::mem::swap(&mut self.obs64, &mut self.next64);
         if last {
             self.in_episode = false;
-            self.episodes += 1;
             flags |= LAST;
         }
         let r = &mut self.records;
@@ -309,8 +352,21 @@ fn gone<P: Params>(inbox: &Inbox<P>, spawned: bool, parent: i32) -> bool {
     }
 }
 
+/// How a plant's work for one learner ended.
+enum Ended {
+    /// The learner stopped the run (or, for a plant it started, dropped it).
+    Stop,
+    /// Join again, for this reason.
+    Rejoin(String),
+}
+
 /// Runs plant `init.index` of the run with the policy type `P` until the learner stops it;
 /// returns the steps taken. A refusal or a failed environment is an error (after a BYE).
+///
+/// A plant started by hand joins again when the learner drops it or when another
+/// incarnation of the run's learner (one resumed from its checkpoint) announces itself; the
+/// learner's WELCOME then continues its streams where its last inserted block left them. A
+/// plant the learner started exits instead (the learner restarts it).
 pub fn run<const OBS: usize, const ACT: usize, const TRI: usize, P>(
     init: &WorkerInit<'_>,
 ) -> Result<u64, String>
@@ -330,36 +386,72 @@ where
         port,
         tag: frames::run_tag(init.run.as_str()),
         index: init.index,
-        incarnation: super::learner::random_u64(),
+        incarnation: 0,
         buf: Vec::new(),
     };
-    let mut inbox = Inbox::<P> {
-        asm: Assembler::new(bytemuck::zeroed_box()),
-        policy: bytemuck::zeroed_box(),
-        version: 0,
-        go: None,
-        go_steps: 0,
-        welcome: None,
-        stop: None,
-        heard: Instant::now(),
-        latency_ns: 0,
-    };
+    let mut steps = 0u64;
+    let mut learner = 0u64;
+    loop {
+        let mut inbox = Inbox::<P>::new();
+        // A fresh incarnation per join: blocks of the previous one still in flight are
+        // told apart and ignored.
+        wire.incarnation = super::learner::random_u64();
+        let w = join(init, &mut wire, &mut inbox, learner, parent)?;
+        learner = inbox.learner;
+        let k = w.block.max(1) as usize;
+        let mut s = Stepper::<OBS, ACT>::new(init.task, &w, init.rate)?;
+        wire.buf = Vec::with_capacity(frames::block_len(OBS, ACT, k));
+        let r = match w.mode {
+            0 => {
+                rounds::<OBS, ACT, TRI, P>(&mut wire, &mut inbox, &mut s, &w, init.spawned, parent)
+            }
+            _ => free::<OBS, ACT, TRI, P>(&mut wire, &mut inbox, &mut s, &w, init.spawned, parent),
+        };
+        match r {
+            Ok((n, Ended::Stop)) => return Ok(steps + n),
+            Ok((n, Ended::Rejoin(_))) if init.spawned => return Ok(steps + n),
+            Ok((n, Ended::Rejoin(why))) => {
+                steps += n;
+                eprintln!("plant {}: {why}; joining again", init.index);
+            }
+            Err(why) => {
+                let mut t: Text = bytemuck::Zeroable::zeroed();
+                frames::put_text(&mut t.message, &why);
+                let _ = wire.send(BYE, &t, &[]);
+                return Err(why);
+            }
+        }
+    }
+}
+
+/// Says HELLO (again every [`HELLO_AGAIN`]) until the learner answers; `learner`: the
+/// incarnation this plant worked for before (0: none).
+fn join<P: Params>(
+    init: &WorkerInit<'_>,
+    wire: &mut Wire,
+    inbox: &mut Inbox<P>,
+    learner: u64,
+    parent: i32,
+) -> Result<Welcome, String> {
     let hello = Hello {
         id: super::identity(init.task, init.net, &init.sizes, inbox.policy.len()),
-        learner: 0,
+        learner,
         pid: std::process::id(),
         spawned: init.spawned as u32,
     };
     wire.send(HELLO, &hello, &[])?;
     let mut said = Instant::now();
-    let w = loop {
-        wire.drain(&mut inbox, 0)?;
+    loop {
+        wire.drain(inbox, 0)?;
         match inbox.welcome.take() {
-            Some(Ok(w)) => break w,
+            Some(Ok(w)) => return Ok(w),
             Some(Err(why)) => return Err(format!("the learner refused this plant: {why}")),
             None => {}
         }
-        if gone(&inbox, init.spawned, parent) {
+        if inbox.stop.is_some() {
+            return Err("the learner stopped the run before this plant joined".into());
+        }
+        if gone(inbox, init.spawned, parent) {
             return Err(format!("no learner of run {} answered", init.run.as_str()));
         }
         if said.elapsed() >= HELLO_AGAIN {
@@ -369,20 +461,7 @@ where
             said = Instant::now();
         }
         wire.port.wait(Duration::from_millis(50));
-    };
-    let k = w.block.max(1) as usize;
-    let mut s = Stepper::<OBS, ACT>::new(init.task, &w, init.rate)?;
-    wire.buf = Vec::with_capacity(frames::block_len(OBS, ACT, k));
-    let r = match w.mode {
-        0 => rounds::<OBS, ACT, TRI, P>(&mut wire, &mut inbox, &mut s, &w, init.spawned, parent),
-        _ => free::<OBS, ACT, TRI, P>(&mut wire, &mut inbox, &mut s, &w, init.spawned, parent),
-    };
-    if let Err(why) = &r {
-        let mut t: Text = bytemuck::Zeroable::zeroed();
-        frames::put_text(&mut t.message, why);
-        let _ = wire.send(BYE, &t, &[]);
     }
-    r
 }
 
 /// Sends the filled block (`round`: the round, or the plant's block counter).
@@ -395,7 +474,7 @@ fn send_block<const OBS: usize, const ACT: usize>(
     let head = BlockHead {
         round,
         version,
-        episodes: s.episodes,
+        episodes: s.resets,
         collector: s.explore.collector,
         param_latency_ns: latency_ns,
         count: s.count,
@@ -408,6 +487,14 @@ fn send_block<const OBS: usize, const ACT: usize>(
     r
 }
 
+/// Whether the plant's work for this learner is over: stopped, or to join again.
+fn ended<P: Params>(inbox: &mut Inbox<P>) -> Option<Ended> {
+    if inbox.stop.is_some() {
+        return Some(Ended::Stop);
+    }
+    inbox.rejoin.take().map(Ended::Rejoin)
+}
+
 /// The deterministic schedule: wait for each round's GO and its policy version, take K
 /// steps (global step `env_steps + rank K + j`, uniform actions below the warm-up), send them.
 fn rounds<const OBS: usize, const ACT: usize, const TRI: usize, P>(
@@ -417,7 +504,7 @@ fn rounds<const OBS: usize, const ACT: usize, const TRI: usize, P>(
     w: &Welcome,
     spawned: bool,
     parent: i32,
-) -> Result<u64, String>
+) -> Result<(u64, Ended), String>
 where
     P: PolicyNet<OBS, ACT, TRI> + Params,
 {
@@ -426,8 +513,8 @@ where
     let mut next_round = 0u64;
     loop {
         wire.drain(inbox, steps)?;
-        if inbox.stop.is_some() {
-            return Ok(steps);
+        if let Some(e) = ended(inbox) {
+            return Ok((steps, e));
         }
         let ready = inbox
             .go
@@ -465,7 +552,7 @@ fn free<const OBS: usize, const ACT: usize, const TRI: usize, P>(
     w: &Welcome,
     spawned: bool,
     parent: i32,
-) -> Result<u64, String>
+) -> Result<(u64, Ended), String>
 where
     P: PolicyNet<OBS, ACT, TRI> + Params,
 {
@@ -473,8 +560,8 @@ where
     let (mut steps, mut block) = (0u64, 0u64);
     while inbox.version == 0 || inbox.go.is_none() {
         wire.drain(inbox, steps)?;
-        if inbox.stop.is_some() {
-            return Ok(steps);
+        if let Some(e) = ended(inbox) {
+            return Ok((steps, e));
         }
         if gone(inbox, spawned, parent) {
             return Err("the learner went silent".into());
@@ -496,8 +583,8 @@ where
         send_block(wire, s, block, (inbox.version, inbox.latency_ns))?;
         block += 1;
         wire.drain(inbox, steps)?;
-        if inbox.stop.is_some() {
-            return Ok(steps);
+        if let Some(e) = ended(inbox) {
+            return Ok((steps, e));
         }
         if orphaned(spawned, parent) {
             return Err("the learner exited".into());

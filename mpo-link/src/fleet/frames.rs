@@ -36,6 +36,10 @@ pub const GO: u32 = 19;
 pub const STOP: u32 = 20;
 /// Learner to a plant: dropped (it missed its round, or hung): join again.
 pub const DROPPED: u32 = 21;
+/// Learner to plants: a learner is waiting for its plants to join (sent every half second
+/// while it admits them). A plant that works for another incarnation of the run's learner
+/// (one that died and was resumed) joins this one.
+pub const ANNOUNCE: u32 = 22;
 
 /// The header of every frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -101,8 +105,9 @@ pub struct Hello {
 pub struct Welcome {
     /// The plant incarnation this answers (a WELCOME for another is ignored).
     pub plant_incarnation: u64,
-    /// Environment resets to replay after creating the environment from `env_seed` (its
-    /// random stream then continues where a checkpoint left it).
+    /// Environment resets to replay after creating the environment from `env_seed`: its
+    /// random stream then continues where the plant's previous process (before a drop, or a
+    /// learner's checkpoint) left it.
     pub episodes: u64,
     /// The collector stream's state to start from.
     pub collector: [u8; 32],
@@ -163,7 +168,8 @@ pub struct BlockHead {
     /// The policy version every action of the block was taken with (0: the warm-up's
     /// uniform actions, or the learner's initial policy).
     pub version: u64,
-    /// Episodes the plant completed (resets of its environment that ended).
+    /// Resets of the plant's environment so far (with those it replayed at its start: see
+    /// [`Welcome::episodes`]).
     pub episodes: u64,
     /// The collector stream's state after the block.
     pub collector: [u8; 32],

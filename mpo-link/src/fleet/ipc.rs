@@ -148,6 +148,7 @@ impl IpcLearner {
             .listener_builder()
             .create()
             .map_err(err("fleet listener"))?;
+        run.restrict_files();
         Ok(Self {
             ports: Some(LearnerPorts {
                 down,
@@ -234,6 +235,7 @@ impl IpcPlant {
             .listener_builder()
             .create()
             .map_err(err("fleet listener"))?;
+        run.restrict_files();
         Ok(Self {
             up: Some(up),
             down: Some(down),
