@@ -64,6 +64,15 @@ fn free_running_plants_train_at_the_rows_update_ratio() {
 /// Runs `mpo train` of the tiny row with `args`, kills plant 1's process (SIGKILL) when it
 /// first joins, and returns the summary and the log.
 fn kill_plant_one(dir: &std::path::Path, args: &[&str]) -> (serde_json::Value, String) {
+    signal_plant_one(dir, args, "-KILL")
+}
+
+/// As [`kill_plant_one`], with the signal `signal` (`-KILL`, `-STOP`).
+fn signal_plant_one(
+    dir: &std::path::Path,
+    args: &[&str],
+    signal: &str,
+) -> (serde_json::Value, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_mpo"))
         .args(["train", "--net", "tiny", "--no-progress", "--steps", "3000"])
         .args(["--plants", "2", "--sync-every", "10", "--out"])
@@ -82,7 +91,7 @@ fn kill_plant_one(dir: &std::path::Path, args: &[&str]) -> (serde_json::Value, S
         log.push('\n');
         if !killed && let Some(rest) = line.strip_prefix("fleet: plant 1 joined (pid ") {
             let pid = rest.split(',').next().unwrap();
-            let st = Command::new("kill").args(["-KILL", pid]).status().unwrap();
+            let st = Command::new("kill").args([signal, pid]).status().unwrap();
             assert!(st.success());
             killed = true;
         }
@@ -123,6 +132,22 @@ fn a_killed_plant_is_restarted_and_rejoins_with_its_streams() {
     assert!(log.contains("fleet: plant 1 rejoined (pid"), "{log}");
     // Both plants delivered blocks after the restart: more blocks than plant 0 alone makes.
     assert!(f["blocks"].as_u64().unwrap() > 3000 / 10 / 2 + 10, "{f}");
+}
+
+#[test]
+fn a_hung_plant_is_dropped_after_its_timeout_restarted_and_rejoins() {
+    let dir = scratch("fleet-hang");
+    // SIGSTOP: the process lives on but says nothing; the learner drops it after 2 s of
+    // silence, kills it, and starts it again.
+    let (s, log) = signal_plant_one(&dir, &["--plant-timeout", "2"], "-STOP");
+    let steps = s["env_steps"].as_u64().unwrap();
+    assert!((3000..3020).contains(&steps), "{steps}\n{log}");
+    let f = &s["fleet"];
+    assert_eq!(f["dropped"], 1, "{log}");
+    assert_eq!(f["restarted"], 1, "{log}");
+    assert_eq!(f["rejoined"], 1, "{log}");
+    assert!(log.contains("dropped: silent for 2 s"), "{log}");
+    assert!(log.contains("fleet: plant 1 rejoined (pid"), "{log}");
 }
 
 #[test]

@@ -566,7 +566,10 @@ fn two_plants_follow_a_learner_killed_and_resumed_to_the_uninterrupted_bits() {
         );
         plogs.push_str(&plog);
     }
-    assert!(st.success(), "resumed learner {st}:\n{log}\nplants:\n{plogs}");
+    assert!(
+        st.success(),
+        "resumed learner {st}:\n{log}\nplants:\n{plogs}"
+    );
     let s: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     assert_eq!(s["env_steps"], 4000, "{log}");
     assert_eq!(s["fleet"]["rejoined"], 2, "{log}");

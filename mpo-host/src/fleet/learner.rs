@@ -414,14 +414,18 @@ impl Fleet {
     /// on restarted processes that exited or stayed silent before joining.
     fn check_health(&mut self) {
         let timeout = self.opts.timeout;
+        let rounds = self.opts.schedule == FleetSchedule::Deterministic;
         let mut drop = Vec::new();
         let mut failed = Vec::new();
         for m in self.members.iter_mut() {
             let exited = m.child.as_mut().and_then(|c| c.try_wait().ok().flatten());
+            // In rounds a plant owes only its block of the round: one that delivered it, or
+            // that joined during the round, waits for the next GO and says nothing meanwhile.
+            let owes = !rounds || (m.in_round && !self.inbox.iter().any(|(i, _)| *i == m.index));
             if m.live {
                 if let Some(status) = exited {
                     drop.push((m.index, format!("its process exited ({status})")));
-                } else if m.heard.elapsed() > timeout {
+                } else if owes && m.heard.elapsed() > timeout {
                     drop.push((
                         m.index,
                         format!("silent for {:.0} s", timeout.as_secs_f64()),
