@@ -185,22 +185,11 @@ fn a_resumed_fleet_run_is_the_uninterrupted_run() {
 fn a_plant_started_by_hand_joins_the_resumed_learner() {
     use mpo_host::fleet::learner::Fleet;
     use mpo_host::spec::Spec;
-    let (id, opts) = tiny_fleet(0);
     let policy: Box<<mpo_host::table::CartpoleTiny as Spec>::Policy> = bytemuck::zeroed_box();
-    let id = {
-        let mut id = id;
-        id.policy_len = mpo_core::params::Params::len(&*policy) as u32;
-        id
-    };
+    let (id, opts) = tiny_fleet(mpo_core::params::Params::len(&*policy));
     let welcome = bytemuck::Zeroable::zeroed();
     let mut first = Fleet::open(opts.clone(), id, welcome, 0, None).unwrap();
-    let plant = Command::new(env!("CARGO_BIN_EXE_mpo"))
-        .args(["plant-worker", "--run", first.run_id(), "--index", "0"])
-        .args(["--task", "cartpole-balance", "--net", "tiny"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let plant = plant_by_hand(first.run_id(), "cartpole-balance", "tiny");
     first.admit(Duration::from_secs(60)).unwrap();
     // The learner dies (no STOP), and another process resumes the run under its id.
     drop(first);
@@ -246,6 +235,18 @@ fn the_runs_iceoryx2_files_are_its_users_alone() {
     drop(fleet);
 }
 
+/// `mpo plant-worker` as plant 0 of `run`, started by hand (not by a learner) with `task` and
+/// `net`; its stderr is piped.
+fn plant_by_hand(run: &str, task: &str, net: &str) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_mpo"))
+        .args(["plant-worker", "--run", run, "--index", "0"])
+        .args(["--task", task, "--net", net])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 /// The identity of the tiny cartpole row (policy length `policy_len`) and a one-plant
 /// deterministic fleet's options under a fresh run id.
 fn tiny_fleet(
@@ -279,13 +280,7 @@ fn a_plant_of_another_task_is_refused_with_both_named() {
     let (id, opts) = tiny_fleet(1);
     let welcome = bytemuck::Zeroable::zeroed();
     let mut fleet = Fleet::open(opts, id, welcome, 0, None).unwrap();
-    let plant = Command::new(env!("CARGO_BIN_EXE_mpo"))
-        .args(["plant-worker", "--run", fleet.run_id(), "--index", "0"])
-        .args(["--task", "pendulum-swingup", "--net", "default"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let plant = plant_by_hand(fleet.run_id(), "pendulum-swingup", "default");
     let e = fleet.admit(Duration::from_secs(60)).unwrap_err();
     let FleetError::Refused { index, message } = &e else {
         panic!("not a refusal: {e}");

@@ -1,8 +1,8 @@
 //! A counting global allocator for the allocation tests. The counter is process-wide, so each
-//! such test lives in a test binary of its own: libtest's main thread allocates when it starts
-//! another test's thread, and that test's thread allocates before it could wait its turn, both
-//! at moments no lock controls (a fleet plant's test counted two allocations that way beside
-//! the trainer's test on a loaded machine).
+//! such test lives in a test binary of its own: a fleet plant's test counted two allocations
+//! beside the trainer's test in one binary on a loaded machine, and passes alone. The likely
+//! source (not traced further): libtest's main thread allocates when it starts another test's
+//! thread, and that thread allocates before it can wait its turn, at moments no lock controls.
 #![allow(dead_code)]
 
 use std::alloc::{GlobalAlloc, Layout, System};
