@@ -78,6 +78,7 @@ fuzz_target!(|data: &[u8]| {
                 current_episode: 0,
             },
             stats: Default::default(),
+            fleet: None,
             metrics: Vec::new(),
             params_sha256: String::new(),
         };

@@ -45,7 +45,7 @@ fn small_checkpoint(tmp: &Path) -> [Vec<u8>; 5] {
     let meta = t.meta(checkpoint::Meta::new(
         settings.clone(),
         None,
-        row.sizes.clone(),
+        row.sizes,
         vec![],
         0.5,
     ));
