@@ -102,6 +102,11 @@ pub struct MpoConfig {
     /// afresh from the learner's stream and their optimisers and the multipliers restart,
     /// keeping the replay, the observation normalisation and the counters; 0 = never.
     pub reset_interval: u32,
+    /// SimbaV2's alternative to resets ([`crate::hypersphere`]): after every optimiser step the
+    /// hidden layers' incoming weight vectors are projected back onto the unit sphere, so the
+    /// effective learning rate stays constant. Residual networks only (the learner refuses it
+    /// for networks without the projection).
+    pub weight_norm: bool,
 }
 
 impl MpoConfig {
@@ -139,6 +144,7 @@ impl MpoConfig {
         value_max: 110.0,
         value_sigma: 0.75,
         reset_interval: 0,
+        weight_norm: false,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -236,7 +242,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 33;
+pub const CONFIG_WORDS: usize = 34;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -278,6 +284,7 @@ impl MpoConfig {
             f(self.value_max),
             f(self.value_sigma),
             self.reset_interval,
+            self.weight_norm as u32,
         ]
     }
 
@@ -325,6 +332,7 @@ impl MpoConfig {
             value_max: f(w[30]),
             value_sigma: f(w[31]),
             reset_interval: w[32],
+            weight_norm: flag(w[33], "weight_norm")?,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -379,6 +387,7 @@ mod tests {
             value_max: 7.5,
             value_sigma: 0.0,
             reset_interval: 1000,
+            weight_norm: true,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();
@@ -391,6 +400,9 @@ mod tests {
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[28] = 2;
+        assert!(MpoConfig::from_words(&bad).is_err());
+        let mut bad = w;
+        bad[33] = 2;
         assert!(MpoConfig::from_words(&bad).is_err());
         let mut bad = w;
         bad[30] = (-4.0f32).to_bits(); // value_max below value_min

@@ -56,6 +56,8 @@ pub mod evaluation;
 pub mod explore;
 pub mod export;
 pub mod gaussian;
+#[cfg(feature = "train")]
+pub mod hypersphere;
 pub mod layer_norm;
 #[cfg(feature = "train")]
 pub mod learner;

@@ -90,7 +90,13 @@ pub trait PolicyTrain<const OBS: usize, const ACT: usize, const TRI: usize>:
     type Tape<const B: usize>: Zeroable + Send + Sync;
     /// The weights transposed, as `backprop` multiplies by them.
     type Transposed: Zeroable + Send + Sync;
+    /// Whether [`PolicyTrain::project_weights`] projects anything (the learner refuses
+    /// `weight_norm` for a network that does not).
+    const PROJECTS: bool = false;
 
+    /// SimbaV2's projection ([`crate::hypersphere`]) of the hidden layers' incoming weight
+    /// vectors onto the unit sphere; the heads stay free. Nothing for a network without it.
+    fn project_weights(&mut self) {}
     /// Head outputs for a batch of normalised states (the mean squashed, the Cholesky head
     /// raw), keeping the activations in `tape`.
     fn forward<const B: usize>(
@@ -155,9 +161,14 @@ pub trait ValueNet<const OBS: usize, const ACT: usize>:
     type Tape<const B: usize>: Zeroable + Send + Sync;
     /// The weights transposed, as `backprop` multiplies by them.
     type Transposed: Zeroable + Send + Sync;
+    /// Whether [`ValueNet::project_weights`] projects anything.
+    const PROJECTS: bool = false;
 
     /// Initialises in place.
     fn init(&mut self, rng: &mut Rng);
+    /// As [`PolicyTrain::project_weights`]: the hidden layers onto the unit sphere, the output
+    /// layer free.
+    fn project_weights(&mut self) {}
     /// The first layer's observation part of a batch of states.
     fn state_part<const B: usize>(&self, obs: &[[f32; OBS]; B], part: &mut Self::StatePart<B>);
     /// `Q` of each row's action at the states of `part` (the expectation of a categorical

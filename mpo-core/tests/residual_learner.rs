@@ -2,7 +2,8 @@
 //! depend on neither the chunking of the batch nor the threads (as for the MLPs,
 //! `tests/mstep.rs`), the learner learns a contextual bandit, and a periodic reset draws
 //! exactly the networks a fresh initialisation from the learner's stream would, keeping the
-//! observation normalisation.
+//! observation normalisation; with `weight_norm` every hidden layer's incoming weight vectors
+//! stay on the unit sphere through updates and the heads stay free.
 
 #![allow(clippy::needless_range_loop)]
 
@@ -111,6 +112,7 @@ fn configs() -> [MpoConfig; 2] {
             sequence_len: 3,
             target_tau: 0.05,
             value_sigma: 0.0,
+            weight_norm: true,
             ..base
         },
     ]
@@ -137,6 +139,15 @@ fn residual_updates_have_the_same_bits_for_any_chunking_and_thread_count() {
 
 #[test]
 fn residual_learner_learns_the_bandit() {
+    learns_the_bandit(false);
+}
+
+#[test]
+fn residual_learner_with_weights_on_the_sphere_learns_the_bandit() {
+    learns_the_bandit(true);
+}
+
+fn learns_the_bandit(weight_norm: bool) {
     // As the MLP learner's bandit (tests/learning.rs): faster steps and target copies every
     // 25 updates (the report's 100 would copy them three times in this test).
     let cfg = MpoConfig {
@@ -144,6 +155,7 @@ fn residual_learner_learns_the_bandit() {
         actor_lr: 1e-3,
         critic_lr: 1e-3,
         target_period: 25,
+        weight_norm,
         ..configs()[0]
     };
     let mut l: Box<L<16, 4>> = bytemuck::zeroed_box();
@@ -236,4 +248,105 @@ fn a_reset_draws_the_networks_of_a_fresh_start_from_the_learners_stream() {
     let (reset, _) = chunked_run::<16, 4, _>(cfg, &Serial, 3);
     assert!(!plain.live.critic.bits_eq(&reset.live.critic));
     assert!(reset.live.critic.bits_eq(&reset.target_critic));
+}
+
+/// The norms of the columns of the stacked input-major matrices, in f64.
+fn column_norms<const O: usize>(parts: &[&[[f32; O]]]) -> Vec<f64> {
+    (0..O)
+        .map(|o| {
+            let sq: f64 = parts
+                .iter()
+                .flat_map(|p| p.iter())
+                .map(|row| (row[o] as f64).powi(2))
+                .sum();
+            sq.sqrt()
+        })
+        .collect()
+}
+
+/// Every hidden layer's columns of `a` and `q` at unit norm (to f32 rounding); `what` names
+/// the moment for the message.
+fn assert_on_the_sphere(a: &Pi, q: &Q, what: &str) {
+    let mut hidden = vec![
+        ("actor embed", column_norms(&[&a.embed.w[..]])),
+        (
+            "critic embed (s, a)",
+            column_norms(&[&q.embed_s.w[..], &q.embed_a.w[..]]),
+        ),
+    ];
+    for (net, trunk) in [("actor", &a.trunk), ("critic", &q.trunk)] {
+        for b in &trunk.blocks {
+            hidden.push((net, column_norms(&[&b.up.w[..]])));
+            hidden.push((net, column_norms(&[&b.down.w[..]])));
+        }
+    }
+    for (name, norms) in hidden {
+        for (o, n) in norms.iter().enumerate() {
+            assert!(
+                (n - 1.0).abs() < 1e-6,
+                "{what}: {name} layer column {o} has norm {n}"
+            );
+        }
+    }
+}
+
+#[test]
+fn weight_norm_holds_the_hidden_layers_on_the_unit_sphere_and_leaves_the_heads_free() {
+    let cfg = MpoConfig {
+        weight_norm: true,
+        ..configs()[0]
+    };
+    let mut l: Box<L<16, 4>> = bytemuck::zeroed_box();
+    l.init(cfg, 11).unwrap();
+    assert_on_the_sphere(&l.live.actor, &l.live.critic, "after init");
+    assert!(l.target_critic.bits_eq(&l.live.critic));
+    let mut rng = Rng::seed_from_u64(12);
+    let start = l.live.actor.clone();
+    for u in 0..5 {
+        fill_bandit(&mut l, &mut rng);
+        l.update().unwrap();
+        assert_on_the_sphere(&l.live.actor, &l.live.critic, &format!("after update {u}"));
+    }
+    // The weights moved (on the sphere), and the heads are not projected: their columns keep
+    // the initialisation's scale (about 1/sqrt(3) for a uniform fan-in draw), not 1.
+    assert!(!l.live.actor.bits_eq(&start));
+    for norms in [
+        column_norms(&[&l.live.actor.mean.w[..]]),
+        column_norms(&[&l.live.critic.out.w[..]]),
+    ] {
+        assert!(
+            norms.iter().all(|n| (n - 1.0).abs() > 0.05),
+            "a head was projected: {norms:?}"
+        );
+    }
+    // A periodic reset lands on the sphere too.
+    let mut r: Box<L<16, 4>> = bytemuck::zeroed_box();
+    r.init(
+        MpoConfig {
+            reset_interval: 2,
+            ..cfg
+        },
+        11,
+    )
+    .unwrap();
+    for _ in 0..2 {
+        fill_bandit(&mut r, &mut rng);
+        r.update().unwrap();
+    }
+    assert_eq!(r.live.critic_opt.t, 0, "the reset did not happen");
+    assert_on_the_sphere(&r.live.actor, &r.live.critic, "after a reset");
+}
+
+#[test]
+fn weight_norm_is_refused_for_networks_without_the_projection() {
+    use mpo_core::learner::Learner;
+    type Mlp = Learner<OBS, ACT, TRI, 16, 16, 16, 16, 16, 4, SEQ, M, N>;
+    let mut l: Box<Mlp> = bytemuck::zeroed_box();
+    let cfg = MpoConfig {
+        weight_norm: true,
+        ..MpoConfig::REPORT
+    };
+    let e = l.init(cfg, 1).unwrap_err();
+    assert_eq!(e.field, "weight_norm");
+    assert!(l.init(MpoConfig::REPORT, 1).is_ok());
 }

@@ -153,6 +153,10 @@ pub struct MpoSettings {
     /// Missing in a file or checkpoint written before it existed: 0, as those runs trained.
     #[serde(default)]
     pub reset_interval: u32,
+    /// SimbaV2's alternative to resets: the hidden layers' weights held on the unit sphere
+    /// (residual rows only). Missing in a file or checkpoint written before it existed: off.
+    #[serde(default)]
+    pub weight_norm: bool,
 }
 
 impl MpoSettings {
@@ -191,6 +195,7 @@ impl MpoSettings {
         value_max: 110.0,
         value_sigma: 0.75,
         reset_interval: 0,
+        weight_norm: false,
     };
 
     fn default_value_min() -> f64 {
@@ -245,6 +250,7 @@ impl MpoSettings {
             value_max: self.value_max as f32,
             value_sigma: self.value_sigma as f32,
             reset_interval: self.reset_interval,
+            weight_norm: self.weight_norm,
         }
     }
 }

@@ -40,7 +40,9 @@
 //! **Resets.** With `reset_interval > 0` (D'Oro et al., 2023), every `reset_interval` updates the
 //! networks are drawn afresh from the learner's stream, their optimisers and the multipliers
 //! restart and the targets copy them; the replay, the observation normalisation and the
-//! counters stay ([`LearnerOf::reset`]).
+//! counters stay ([`LearnerOf::reset`]). With `weight_norm` (SimbaV2's alternative), the hidden
+//! layers' weights are held on the unit sphere instead: projected at initialisation and after
+//! every Adam step of their network ([`crate::hypersphere`]).
 //!
 //! **Where things are.** This file holds the struct, its construction and acting; `update`
 //! runs an update and its phases over the chunks (the parallel loops and the reductions in
@@ -180,6 +182,12 @@ impl<
                 requirement: "false unless the learner has M = N",
             });
         }
+        if cfg.weight_norm && !(P::PROJECTS && Q::PROJECTS) {
+            return Err(ConfigError {
+                field: "weight_norm",
+                requirement: "false unless both networks are residual (they project their weights)",
+            });
+        }
         self.cfg = cfg;
         let mut rng = Rng::seed_from_u64(seed);
         self.init_networks(&mut rng);
@@ -198,6 +206,10 @@ impl<
             l.actor.squash_mut().init(1.0);
         }
         l.critic.init(rng);
+        if cfg.weight_norm {
+            l.actor.project_weights();
+            l.critic.project_weights();
+        }
         l.actor_m.fill_zero();
         l.actor_v.fill_zero();
         l.critic_m.fill_zero();

@@ -201,6 +201,9 @@ impl<
             &mut l.critic_m,
             &mut l.critic_v,
         );
+        if self.cfg.weight_norm {
+            l.critic.project_weights();
+        }
         Ok(())
     }
 
@@ -301,6 +304,9 @@ impl<
             &mut l.actor_m,
             &mut l.actor_v,
         );
+        if cfg.weight_norm {
+            l.actor.project_weights();
+        }
         update_multipliers(&mut l.duals, &cfg, &sums.kl_mean, &sums.kl_cov);
 
         let bd = (Self::B * ACT) as f32;

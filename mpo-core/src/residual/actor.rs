@@ -19,6 +19,8 @@ use super::trunk::{MAX_PARTS, TrunkPart, TrunkTransposed};
 #[cfg(feature = "train")]
 use crate::actor::sum_squares;
 #[cfg(feature = "train")]
+use crate::hypersphere::normalize_columns;
+#[cfg(feature = "train")]
 use crate::linear::{accumulate, bias_grad_chunks, transpose, weight_grad_chunks};
 #[cfg(feature = "train")]
 use crate::network::{PolicyGradInputs, PolicyTrain, chunk_slices};
@@ -202,6 +204,12 @@ impl<
 {
     type Tape<const B: usize> = TrunkTape<B, W, F, D>;
     type Transposed = ResidualActorTransposed<ACT, TRI, W, F, D>;
+    const PROJECTS: bool = true;
+
+    fn project_weights(&mut self) {
+        normalize_columns(&mut [&mut self.embed.w[..]]);
+        self.trunk.project_weights();
+    }
 
     fn forward<const B: usize>(
         &self,

@@ -9,6 +9,7 @@ use super::trunk::{MAX_PARTS, Trunk, TrunkPart, TrunkTape, TrunkTransposed};
 use crate::actor::sum_squares;
 use crate::config::MpoConfig;
 use crate::critic::Weights;
+use crate::hypersphere::normalize_columns;
 use crate::linear::{
     Linear, Start, accumulate, bias_grad_chunks, kernel, transpose, weight_grad_chunks,
 };
@@ -129,6 +130,14 @@ impl<
     type StatePart<const B: usize> = [[f32; W]; B];
     type Tape<const B: usize> = ResidualCriticTape<B, W, F, D, K>;
     type Transposed = ResidualCriticTransposed<W, F, D, K>;
+    const PROJECTS: bool = true;
+
+    /// The embedding is one layer on the concatenation `(s, a)`: each unit's vector is its
+    /// state and action weights together.
+    fn project_weights(&mut self) {
+        normalize_columns(&mut [&mut self.embed_s.w[..], &mut self.embed_a.w[..]]);
+        self.trunk.project_weights();
+    }
 
     /// Uniform fan-in layers (the embedding's fan-in is `OBS + ACT`, as one layer on the
     /// concatenation), identity normalisations.

@@ -3,6 +3,8 @@
 
 use bytemuck::Zeroable;
 
+#[cfg(feature = "train")]
+use crate::hypersphere::normalize_columns;
 use crate::layer_norm::LayerNorm;
 use crate::linear::{Linear, accumulate};
 #[cfg(feature = "train")]
@@ -96,6 +98,15 @@ impl<const W: usize, const F: usize, const D: usize> Trunk<W, F, D> {
             b.down.init_uniform(rng);
         }
         self.norm.init();
+    }
+
+    #[cfg(feature = "train")]
+    /// Every block's `up` and `down` onto the unit sphere ([`crate::hypersphere`]).
+    pub fn project_weights(&mut self) {
+        for b in self.blocks.iter_mut() {
+            normalize_columns(&mut [&mut b.up.w[..]]);
+            normalize_columns(&mut [&mut b.down.w[..]]);
+        }
     }
 
     /// The blocks and the final normalisation on `tape.stream` (the embedding of each row),
