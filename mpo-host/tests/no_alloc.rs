@@ -1,6 +1,7 @@
 //! The act-and-learn loop allocates nothing: a counting allocator around
 //! `Trainer::collect` over episode boundaries, warm-up, learner updates and observation
-//! normalisation's refits (a fleet plant's step path: `no_alloc_plant.rs`). The counter is
+//! normalisation's refits, with the MLPs and with the residual networks (weights on the sphere,
+//! periodic resets) (a fleet plant's step path: `no_alloc_plant.rs`). The counter is
 //! global: this binary holds this one test (`counting`'s header says why).
 
 mod counting;
@@ -9,11 +10,27 @@ use std::sync::atomic::Ordering;
 
 use counting::{ALLOCS, serial};
 use mpo_host::commands::defaults;
+use mpo_host::spec::Spec;
 use mpo_host::table;
-use mpo_host::trainer::MlpTrainer as Trainer;
+use mpo_host::table::CartpoleTinySimba;
+use mpo_host::trainer::{MlpTrainer, Trainer};
 
 /// The tiny cartpole row's trainer type.
-type Tiny = Trainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
+type Tiny = MlpTrainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
+/// The tiny residual row's (`tiny-simba`: residual networks, a categorical critic).
+type TinySimba = Trainer<
+    5,
+    1,
+    1,
+    <CartpoleTinySimba as Spec>::Policy,
+    <CartpoleTinySimba as Spec>::Critic,
+    32,
+    2,
+    4,
+    10,
+    10,
+    50_000,
+>;
 
 #[test]
 fn collect_and_learn_allocate_nothing() {
@@ -53,4 +70,20 @@ fn collect_and_learn_allocate_nothing() {
             "allocations inside collect ({evaluation:?})"
         );
     }
+    // The residual networks and the categorical critic, with the weights held on the sphere
+    // and a periodic reset (a fresh draw of both networks, in place) every 150 updates.
+    let row = table::row("cartpole-balance", "tiny-simba").unwrap();
+    let mut settings = defaults(row);
+    settings.mpo.weight_norm = true;
+    settings.mpo.reset_interval = 150;
+    let mut t = TinySimba::new(&settings, None, 2).unwrap();
+    let before = ALLOCS.load(Ordering::SeqCst);
+    t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
+    let after = ALLOCS.load(Ordering::SeqCst);
+    assert!(
+        t.agent.learner.updates >= 300,
+        "updates {}",
+        t.agent.learner.updates
+    );
+    assert_eq!(after - before, 0, "allocations inside collect (tiny-simba)");
 }

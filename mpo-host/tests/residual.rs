@@ -1,7 +1,8 @@
 //! The residual networks and the categorical critic through the commands (the `tiny-simba`
 //! row of cartpole-balance): a run repeats its bits on one and two threads and after a
-//! resume, its checkpoint evaluates to the run's last evaluation, and its exported policy
-//! builds into the firmware, which answers with the host's actions bit for bit.
+//! resume, its checkpoint evaluates to the run's last evaluation, its exported policy
+//! builds into the firmware, which answers with the host's actions bit for bit, and the
+//! weights on the sphere (`weight_norm`) are a setting the checkpoint keeps.
 
 mod common;
 use common::*;
@@ -56,6 +57,43 @@ fn a_residual_categorical_run_repeats_its_bits_on_any_thread_count_and_after_a_r
     ]));
     // The evaluation's episodes start from the run's evaluation seeds: the same returns.
     assert_eq!(eval["return_mean"], one["eval_return_mean"]);
+}
+
+#[test]
+fn weights_on_the_sphere_are_a_runs_setting_kept_by_its_checkpoint() {
+    let d = scratch("residual-sphere");
+    let wn = ["--threads", "2", "--set", "mpo.weight_norm=true"];
+    let full = simba(&d.join("full"), 2000, &wn);
+    let plain = simba(&d.join("plain"), 2000, &["--threads", "2"]);
+    assert_ne!(full["params_sha256"], plain["params_sha256"]);
+    simba(&d.join("half"), 1000, &wn);
+    // Resumed without the --set: the checkpoint's settings hold it.
+    let resumed = ok_json(&mpo(&[
+        "train",
+        "--no-progress",
+        "--resume",
+        d.join("half").to_str().unwrap(),
+        "--steps",
+        "2000",
+    ]));
+    assert_eq!(resumed["params_sha256"], full["params_sha256"]);
+    // An MLP row refuses it, naming the setting.
+    let out = mpo(&[
+        "train",
+        "--no-progress",
+        "--steps",
+        "1000",
+        "--set",
+        "mpo.weight_norm=true",
+        "--out",
+        d.join("mlp").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("weight_norm") && err.contains("residual"),
+        "{err}"
+    );
 }
 
 #[test]
