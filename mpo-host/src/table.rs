@@ -73,6 +73,16 @@ crate::spec! {
     /// hopper-hop, residual networks and a categorical critic of 101 atoms.
     pub HopperSimba = obs 15, act 4, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
         batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// hopper-hop, residual networks and the scalar critic (the ablation of the atoms).
+    pub HopperResidual = obs 15, act 4, actor [64, 256] x 1, critic [128, 256] x 2,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// walker-run, the 256-256 MLPs with a categorical critic of 101 atoms (the ablation of
+    /// the residual networks).
+    pub WalkerCategorical = obs 24, act 6, actor [256, 256], critic [256, 256], bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// hopper-hop, the 256-256 MLPs with a categorical critic of 101 atoms.
+    pub HopperCategorical = obs 15, act 4, actor [256, 256], critic [256, 256], bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
     /// cheetah-run, residual networks and a categorical critic of 101 atoms.
     pub CheetahSimba = obs 17, act 6, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
         batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
@@ -104,6 +114,9 @@ pub fn instances() -> Vec<Instance> {
         WalkerResidual::instance(),
         WalkerSimba::instance(),
         HopperSimba::instance(),
+        HopperResidual::instance(),
+        WalkerCategorical::instance(),
+        HopperCategorical::instance(),
         CheetahSimba::instance(),
         AcrobotSimba::instance(),
     ]
@@ -294,13 +307,17 @@ static ROWS: LazyLock<Vec<Row>> = LazyLock::new(|| {
     ];
     // The residual and categorical variants (docs/rows.md, "The residual rows"): the task's
     // default settings with other networks, at the 500k-step budget: `simba` (residual
-    // networks and a categorical critic) for the four hardest tasks, `residual` (residual
-    // networks, the scalar critic) for walker-run as the ablation.
+    // networks and a categorical critic) for the four hardest tasks; for the ablation on
+    // walker-run and hopper-hop, `residual` (residual networks, the scalar critic) and
+    // `categorical` (the MLPs, the categorical critic).
     let k = 500_000;
     rows.extend([
         of::<WalkerResidual>("walker-run", "residual", k, suite, SUITE_MPO),
         of::<WalkerSimba>("walker-run", "simba", k, suite, SUITE_MPO),
         of::<HopperSimba>("hopper-hop", "simba", k, noisy, HOPPER_MPO),
+        of::<HopperResidual>("hopper-hop", "residual", k, noisy, HOPPER_MPO),
+        of::<WalkerCategorical>("walker-run", "categorical", k, suite, SUITE_MPO),
+        of::<HopperCategorical>("hopper-hop", "categorical", k, noisy, HOPPER_MPO),
         of::<CheetahSimba>("cheetah-run", "simba", k, suite, SUITE_MPO),
         of::<AcrobotSimba>("acrobot-swingup", "simba", k, noisy, SUITE_MPO),
     ]);
