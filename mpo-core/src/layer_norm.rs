@@ -6,9 +6,10 @@
 //! observations (the Control Suite's are not normalised here). Per row of pre-activations `x`
 //! of width `N`: `xhat = (x - mean(x)) / sqrt(var(x) + EPS)`, `y = g xhat + b`, `h = tanh(y)`.
 //!
-//! Every operation is an IEEE-exact one (`+`, `*`, fma, `sqrtf`) or `libm::tanhf` (portable
-//! software, the same bits on every CPU), and sums run in index order, so the results are
-//! bit-identical across builds and thread counts like the rest of the core.
+//! Every operation is an IEEE-exact one (`+`, `*`, fma, `sqrtf`) or [`crate::mathf::tanh`]
+//! (written from those, branch-free: the `tanh` loop vectorises, where `libm::tanhf` ran one
+//! unit at a time), and sums run in index order, so the results are bit-identical across
+//! builds, CPUs and thread counts like the rest of the core.
 //!
 //! The residual networks' form ([`LayerNorm::forward_rows`], [`LayerNorm::backward_rows`]) has
 //! no `tanh` and sums each row in eight lanes ([`sum8`], [`dot8`]: lane `l` adds the entries
@@ -20,6 +21,7 @@
 use bytemuck::Zeroable;
 
 use crate::linear::mul_add;
+use crate::mathf::tanh;
 use crate::params::Params;
 
 /// Added to the variance (PyTorch's and Haiku's default).
@@ -74,7 +76,7 @@ impl<const N: usize> LayerNorm<N> {
             *r = 1.0 / libm::sqrtf(var + EPS);
             for o in 0..N {
                 xh[o] = (row[o] - mean) * *r;
-                row[o] = libm::tanhf(mul_add(self.g[o], xh[o], self.b[o]));
+                row[o] = tanh(mul_add(self.g[o], xh[o], self.b[o]));
             }
         }
     }

@@ -17,6 +17,7 @@
 
 use bytemuck::Zeroable;
 
+use crate::mathf::tanh;
 use crate::params::Params;
 
 /// Per-action bound of the mean; `0` = unbounded.
@@ -54,7 +55,7 @@ impl<const ACT: usize> MeanSquash<ACT> {
     pub fn apply(&self, mean: &mut [f32; ACT]) {
         for (m, &b) in mean.iter_mut().zip(&self.bound) {
             if b > 0.0 {
-                *m = b * libm::tanhf(*m / b);
+                *m = b * tanh(*m / b);
             }
         }
     }
@@ -101,12 +102,12 @@ mod tests {
         s.bound = [1.0, 0.5, f32::NAN];
         let mut m = [3.0f32, -0.25, 7.0];
         s.apply(&mut m);
-        assert_eq!(m[0], libm::tanhf(3.0));
-        assert_eq!(m[1], 0.5 * libm::tanhf(-0.5));
+        assert_eq!(m[0], tanh(3.0));
+        assert_eq!(m[1], 0.5 * tanh(-0.5));
         assert_eq!(m[2], 7.0);
         let mut d = [[1.0f32; 3]];
         s.backward_rows(&[m], &mut d);
-        let t = libm::tanhf(3.0);
+        let t = tanh(3.0);
         assert_eq!(d[0][0], 1.0 - t * t);
         assert_eq!(d[0][2], 1.0);
     }
