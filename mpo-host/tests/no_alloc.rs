@@ -32,6 +32,13 @@ type TinySimba = Trainer<
     50_000,
 >;
 
+/// Allocations (counted globally) while `f` runs.
+fn allocations_in(f: impl FnOnce()) -> u64 {
+    let before = ALLOCS.load(Ordering::SeqCst);
+    f();
+    ALLOCS.load(Ordering::SeqCst) - before
+}
+
 #[test]
 fn collect_and_learn_allocate_nothing() {
     use mpo_host::settings::PolicyEvaluation;
@@ -55,20 +62,16 @@ fn collect_and_learn_allocate_nothing() {
         // The clip before the critic on TD and Retrace (its copies are fixed scratch).
         settings.mpo.clip_critic_actions = n != 3;
         let mut t = Tiny::new(&settings, None, 2).unwrap();
-        let before = ALLOCS.load(Ordering::SeqCst);
         // 2500 steps: three resets, 500 warm-up steps, then 500 updates (one per 4 steps).
-        t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
-        let after = ALLOCS.load(Ordering::SeqCst);
+        let allocs = allocations_in(|| {
+            t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
+        });
         assert!(
             t.agent.learner.updates >= 400,
             "updates {}",
             t.agent.learner.updates
         );
-        assert_eq!(
-            after - before,
-            0,
-            "allocations inside collect ({evaluation:?})"
-        );
+        assert_eq!(allocs, 0, "allocations inside collect ({evaluation:?})");
     }
     // The residual networks and the categorical critic, with the weights held on the sphere
     // and a periodic reset (a fresh draw of both networks, in place) every 150 updates.
@@ -77,13 +80,13 @@ fn collect_and_learn_allocate_nothing() {
     settings.mpo.weight_norm = true;
     settings.mpo.reset_interval = 150;
     let mut t = TinySimba::new(&settings, None, 2).unwrap();
-    let before = ALLOCS.load(Ordering::SeqCst);
-    t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
-    let after = ALLOCS.load(Ordering::SeqCst);
+    let allocs = allocations_in(|| {
+        t.collect(2500).unwrap_or_else(|_| panic!("collect failed"));
+    });
     assert!(
         t.agent.learner.updates >= 300,
         "updates {}",
         t.agent.learner.updates
     );
-    assert_eq!(after - before, 0, "allocations inside collect (tiny-simba)");
+    assert_eq!(allocs, 0, "allocations inside collect (tiny-simba)");
 }

@@ -29,6 +29,19 @@ fn simba(dir: &Path, steps: u64, extra: &[&str]) -> serde_json::Value {
     ok_json(&mpo(&args))
 }
 
+/// `mpo train --resume dir --steps N`'s summary.
+fn resume(dir: &Path, steps: u64) -> serde_json::Value {
+    let steps = steps.to_string();
+    ok_json(&mpo(&[
+        "train",
+        "--no-progress",
+        "--resume",
+        dir.to_str().unwrap(),
+        "--steps",
+        &steps,
+    ]))
+}
+
 #[test]
 fn a_residual_categorical_run_repeats_its_bits_on_any_thread_count_and_after_a_resume() {
     let d = scratch("residual-bits");
@@ -38,14 +51,7 @@ fn a_residual_categorical_run_repeats_its_bits_on_any_thread_count_and_after_a_r
     assert_eq!(one["eval_return_mean"], two["eval_return_mean"]);
     let half = simba(&d.join("half"), 1000, &["--threads", "1"]);
     assert_ne!(half["params_sha256"], one["params_sha256"]);
-    let resumed = ok_json(&mpo(&[
-        "train",
-        "--no-progress",
-        "--resume",
-        d.join("half").to_str().unwrap(),
-        "--steps",
-        "2000",
-    ]));
+    let resumed = resume(&d.join("half"), 2000);
     assert_eq!(resumed["params_sha256"], one["params_sha256"]);
 
     let eval = ok_json(&mpo(&[
@@ -68,14 +74,7 @@ fn weights_on_the_sphere_are_a_runs_setting_kept_by_its_checkpoint() {
     assert_ne!(full["params_sha256"], plain["params_sha256"]);
     simba(&d.join("half"), 1000, &wn);
     // Resumed without the --set: the checkpoint's settings hold it.
-    let resumed = ok_json(&mpo(&[
-        "train",
-        "--no-progress",
-        "--resume",
-        d.join("half").to_str().unwrap(),
-        "--steps",
-        "2000",
-    ]));
+    let resumed = resume(&d.join("half"), 2000);
     assert_eq!(resumed["params_sha256"], full["params_sha256"]);
     // An MLP row refuses it, naming the setting.
     let out = mpo(&[
