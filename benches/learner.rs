@@ -124,10 +124,11 @@ fn bench<const OBS: usize, const ACT: usize, const TRI: usize, const M: usize, c
 /// these types' (checked).
 fn bench_row<const OBS: usize, const ACT: usize, const TRI: usize>(
     task: &str,
+    net: &str,
     one: &PoolParallel,
     two: &PoolParallel,
 ) {
-    let row = mpo_host::table::row(task, mpo_host::table::DEFAULT_NET).expect("a built-in row");
+    let row = mpo_host::table::row(task, net).expect("a built-in row");
     let want = mpo_host::sizes::Sizes {
         obs: OBS,
         act: ACT,
@@ -145,10 +146,10 @@ fn bench_row<const OBS: usize, const ACT: usize, const TRI: usize>(
     };
     assert_eq!(
         row.sizes, want,
-        "{task}: the bench's types are not the row's sizes"
+        "{task} `{net}`: the bench's types are not the row's sizes"
     );
     let cfg = row.mpo.to_config();
-    let label = format!("{task} row (as trained)");
+    let label = format!("{task} `{net}` row (as trained)");
     bench_seq::<OBS, ACT, TRI, ROW_SEQ, 20, 20>(&label, cfg, one, two);
 }
 
@@ -257,16 +258,17 @@ fn profile(updates: usize, mode: &[String], threads: usize) {
 fn bench_rows(only: Option<&str>, one: &PoolParallel, two: &PoolParallel) {
     let on = |t: &str| only.is_none_or(|o| o == t);
     if on("walker-walk") {
-        bench_row::<24, 6, 21>("walker-walk", one, two);
+        bench_row::<24, 6, 21>("walker-walk", "default", one, two);
     }
     if on("hopper-hop") {
-        bench_row::<15, 4, 10>("hopper-hop", one, two);
+        // hopper-hop's 256-256 MLP row (its default is the residual `simba` row since 2026-12-05).
+        bench_row::<15, 4, 10>("hopper-hop", "mlp", one, two);
     }
     if on("cheetah-run") {
-        bench_row::<17, 6, 21>("cheetah-run", one, two);
+        bench_row::<17, 6, 21>("cheetah-run", "default", one, two);
     }
     if on("cartpole-swingup") {
-        bench_row::<5, 1, 1>("cartpole-swingup", one, two);
+        bench_row::<5, 1, 1>("cartpole-swingup", "default", one, two);
     }
 }
 
