@@ -33,8 +33,8 @@ ROWS = {
     "cheetah-run": (800, [("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)])]),
     "hopper-stand": (900, [("default", "default", [f"hopper-stand/eps-penalty-0.01-seed{s}" for s in range(3)])]),
     "hopper-hop": (250, [
-        ("default", "default (MLP)", [f"hopper-hop/eps-penalty-0.01-seed{s}" for s in range(3)]),
-        ("simba", "`simba`", [f"hopper-hop/simba-seed{s}" for s in range(3)]),
+        ("mlp", "`mlp` (the default before)", [f"hopper-hop/eps-penalty-0.01-seed{s}" for s in range(3)]),
+        ("simba", "`simba` (the default now)", [f"hopper-hop/simba-seed{s}" for s in range(3)]),
     ]),
 }
 
