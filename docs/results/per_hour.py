@@ -29,13 +29,12 @@ def seconds_to(row, rate, env_rate):
 
 def to_target(rows, target, rate, env_rate):
     """Hours to the first evaluation at or above `target`, or the run's best if none."""
-    hit = next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
+    hit = runs.first_at_or_above(rows, target)
     if hit is not None:
         h = seconds_to(hit, rate, env_rate) / 3600
         return f"{h:.2f} h ({int(hit['env_steps']) // 1000}k)"
-    best = max(float(r["eval_return_mean"]) for r in rows)
     h = seconds_to(rows[-1], rate, env_rate) / 3600
-    return f"not reached (best {best:.1f} in {h:.2f} h, {int(rows[-1]['env_steps']) // 1000}k)"
+    return f"not reached (best {runs.best(rows):.1f} in {h:.2f} h, {int(rows[-1]['env_steps']) // 1000}k)"
 
 
 def main():

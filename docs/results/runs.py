@@ -18,6 +18,16 @@ def index_at(rows, step):
     return next((i for i, r in enumerate(rows) if int(r["env_steps"]) == step), None)
 
 
+def first_at_or_above(rows, target):
+    """The first evaluation whose mean is at or above `target`, or None."""
+    return next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
+
+
+def best(rows):
+    """The best evaluation mean of a run."""
+    return max(float(r["eval_return_mean"]) for r in rows)
+
+
 def help_or_usage(doc, args):
     """`-h`/`--help` prints `doc` and exits 0; no arguments prints it to stderr and exits 2."""
     if not args or args[0] in ("-h", "--help"):

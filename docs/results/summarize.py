@@ -40,7 +40,7 @@ def main():
             if i is None:
                 sys.exit(f"{d}: no evaluation at environment step {at}")
             rows = rows[: i + 1]
-        first = next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
+        first = runs.first_at_or_above(rows, target)
         last = rows[-1]
         best = max(float(r["eval_return_mean"]) for r in rows)
         wall = float(last["wall_s"])

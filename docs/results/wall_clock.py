@@ -48,12 +48,11 @@ def hours_to(row, rate):
 def seed_result(rows, target, one, two):
     """(hours on one thread, on two, step) to the first evaluation >= target, or None and the
     run's best with the hours it had run."""
-    hit = next((r for r in rows if float(r["eval_return_mean"]) >= target), None)
+    hit = runs.first_at_or_above(rows, target)
     if hit is not None:
         return (hours_to(hit, one), hours_to(hit, two), int(hit["env_steps"])), None
-    best = max(float(r["eval_return_mean"]) for r in rows)
     last = rows[-1]
-    return None, (best, hours_to(last, one), hours_to(last, two), int(last["env_steps"]))
+    return None, (runs.best(rows), hours_to(last, one), hours_to(last, two), int(last["env_steps"]))
 
 
 def main():
