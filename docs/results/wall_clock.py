@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """Wall clock to each task's target on this machine (docs/experiments.md, issue 35 item 5).
 
-Usage: docs/results/wall_clock.py RATES.json
+Usage: docs/results/wall_clock.py RATES.json [MORE_RATES.json...]
 
 RATES.json is what `scripts/bench-rows --threads 1,2 --json RATES.json` wrote: each row's
 updates/s while learning and environment steps/s, on one thread and on two, measured in one
-window. Each row's runs (below: the row's seeds in docs/results, or the frontier's in
+window. A row measured in several files takes its rates from the first that has it (so a later
+window adds rows without moving the earlier ones'; its ratios hold within its own window). Each row's runs (below: the row's seeds in docs/results, or the frontier's in
 runs/frontier) are read by their updates and environment steps at those rates, as
 `per_hour.py` does: the hours to a run's first evaluation at or above the target, or, where no
 evaluation reaches it, the run's best and the hours it had run. Evaluations and checkpoints
@@ -35,6 +36,8 @@ ROWS = {
     "hopper-hop": (250, [
         ("mlp", "`mlp` (the default before)", [f"hopper-hop/eps-penalty-0.01-seed{s}" for s in range(3)]),
         ("simba", "`simba` (the default now)", [f"hopper-hop/simba-seed{s}" for s in range(3)]),
+        ("residual", "`residual` (scalar critic; ablation)", ["hopper-hop/residual-seed0"]),
+        ("categorical", "`categorical` (MLP networks; ablation)", ["hopper-hop/categorical-seed0"]),
     ]),
 }
 
@@ -58,7 +61,10 @@ def seed_result(rows, target, one, two):
 def main():
     args = sys.argv[1:]
     runs.help_or_usage(__doc__, args)
-    rates = {(r["task"], r["net"], r["threads"]): r for r in json.load(open(args[0]))}
+    rates = {}
+    for path in args:
+        for r in json.load(open(path)):
+            rates.setdefault((r["task"], r["net"], r["threads"]), r)
     print("| task | target | row | updates/s, 1 / 2 threads | the budget takes (h), 1 / 2 threads "
           "| seeds at the target: hours to it, 1 / 2 threads (step) | the other seeds: best (hours run, 1 / 2 threads; steps) |")
     print("|---|---:|---|---|---|---|---|")
