@@ -42,7 +42,7 @@ def main():
             rows = rows[: i + 1]
         first = runs.first_at_or_above(rows, target)
         last = rows[-1]
-        best = max(float(r["eval_return_mean"]) for r in rows)
+        best = runs.best(rows)
         wall = float(last["wall_s"])
         steps = int(last["env_steps"])
         updates = int(last["updates"])

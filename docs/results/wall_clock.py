@@ -5,8 +5,9 @@ Usage: docs/results/wall_clock.py RATES.json [MORE_RATES.json...]
 
 RATES.json is what `scripts/bench-rows --threads 1,2 --json RATES.json` wrote: each row's
 updates/s while learning and environment steps/s, on one thread and on two, measured in one
-window. A row measured in several files takes its rates from the first that has it (so a later
-window adds rows without moving the earlier ones'; its ratios hold within its own window). Each row's runs (below: the row's seeds in docs/results, or the frontier's in
+window. A row measured in several files takes its rates from the first that has it (so a
+later window adds rows without moving the earlier ones'; its ratios hold within its own
+window). Each row's runs (below: the row's seeds in docs/results, or the frontier's in
 runs/frontier) are read by their updates and environment steps at those rates, as
 `per_hour.py` does: the hours to a run's first evaluation at or above the target, or, where no
 evaluation reaches it, the run's best and the hours it had run. Evaluations and checkpoints
