@@ -89,6 +89,12 @@ crate::spec! {
     /// acrobot-swingup, residual networks and a categorical critic of 101 atoms.
     pub AcrobotSimba = obs 6, act 1, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
         batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// The cartpole tasks, residual networks and a categorical critic of 101 atoms.
+    pub CartpoleSimba = obs 5, act 1, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
+    /// pendulum-swingup, residual networks and a categorical critic of 101 atoms.
+    pub PendulumSimba = obs 3, act 1, actor [64, 256] x 1, critic [128, 256] x 2, bins 101,
+        batch 256 / 4, seq 8, samples 20 20, replay 1_000_000;
 }
 
 /// Every built-in instantiation.
@@ -119,6 +125,8 @@ pub fn instances() -> Vec<Instance> {
         HopperCategorical::instance(),
         CheetahSimba::instance(),
         AcrobotSimba::instance(),
+        CartpoleSimba::instance(),
+        PendulumSimba::instance(),
     ]
 }
 
@@ -325,6 +333,22 @@ static ROWS: LazyLock<Vec<Row>> = LazyLock::new(|| {
         of::<HopperCategorical>("hopper-hop", "categorical", k, noisy, HOPPER_MPO),
         of::<CheetahSimba>("cheetah-run", "simba", k, suite, SUITE_MPO),
         of::<AcrobotSimba>("acrobot-swingup", "simba", k, noisy, SUITE_MPO),
+    ]);
+    // The same networks on the other six tasks, with each task's default settings and
+    // schedule (cartpole-balance's budget stays 100k: its target is at 100k).
+    rows.extend([
+        of::<CartpoleSimba>(
+            "cartpole-balance",
+            "simba",
+            100_000,
+            CARTPOLE_SCHEDULE,
+            CARTPOLE_DEFAULT_MPO,
+        ),
+        of::<CartpoleSimba>("cartpole-swingup", "simba", k, suite, SUITE_MPO),
+        of::<PendulumSimba>("pendulum-swingup", "simba", k, noisy, PENDULUM_MPO),
+        of::<HopperSimba>("hopper-stand", "simba", k, noisy, HOPPER_MPO),
+        of::<WalkerSimba>("walker-stand", "simba", k, suite, SUITE_MPO),
+        of::<WalkerSimba>("walker-walk", "simba", k, suite, SUITE_MPO),
     ]);
     rows.shrink_to_fit();
     rows
