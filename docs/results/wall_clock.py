@@ -30,7 +30,7 @@ ROWS = {
     "walker-walk": (960, [("default", "default", [f"walker-walk/default-seed{s}" for s in range(3)])]),
     "walker-run": (700, [
         ("default", "default (MLP)", ["walker-run/default-seed0"]),
-        ("simba", "`simba`", ["walker-run/simba-seed0"]),
+        ("simba", "`simba`", [f"walker-run/simba-seed{s}" for s in range(3)]),
     ]),
     "cheetah-run": (800, [("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)])]),
     "hopper-stand": (900, [("default", "default", [f"hopper-stand/eps-penalty-0.01-seed{s}" for s in range(3)])]),
