@@ -344,9 +344,85 @@ fn load_average() -> String {
         .unwrap_or_else(|_| "?".into())
 }
 
+/// The categorical value head of 101 atoms on a batch of 256 rows: the softmax and expectation
+/// (`values`), the cross-entropy's gradient (`loss`) and the 128 -> 101 output layer's backward
+/// on that gradient, at two shapes of logits. "near": every logit within 13 of the largest
+/// (values inside the support). "far": logits falling 1.5 per atom away from atom 85, so the
+/// atoms below about 27 lie more than 87 under the largest, as when a critic's values climb
+/// toward the support's top and Adam keeps pushing the far atoms' logits down; without a floor
+/// their probabilities and gradients are subnormal numbers, which x86 cores handle in microcode.
+fn value_rows(rows: &mut Vec<Row>) {
+    use mpo_core::linear::Linear;
+    use mpo_core::value_head::{Support, loss, values};
+    const K: usize = 101;
+    const H: usize = 128;
+    let mut support = Support {
+        min: 0.0,
+        max: 100.0,
+        sigma: 0.0,
+        floor: 0.0,
+    };
+    let mut rng = Rng::seed_from_u64(5);
+    let mut l: Box<Linear<H, K>> = bytemuck::zeroed_box();
+    l.init_uniform(&mut rng);
+    let mut g: Box<Linear<H, K>> = bytemuck::zeroed_box();
+    let mut wt: Box<[[f32; H]; K]> = bytemuck::zeroed_box();
+    let mut x: Box<[[f32; H]; B]> = bytemuck::zeroed_box();
+    let mut dx: Box<[[f32; H]; B]> = bytemuck::zeroed_box();
+    rng.fill_normal(x.as_flattened_mut());
+    let mut out: Box<[[f32; K]; B]> = bytemuck::zeroed_box();
+    let mut probs: Box<[[f32; K]; B]> = bytemuck::zeroed_box();
+    let mut d_out: Box<[[f32; K]; B]> = bytemuck::zeroed_box();
+    let (mut q, mut y, mut ce) = ([0f32; B], [0f32; B], [0f32; B]);
+    // "far" with the floor off (every atom kept) and on (`MpoConfig::logit_floor`'s 40).
+    for (name, slope, floor) in [
+        ("near logits", 0.13f32, 40.0),
+        ("far logits, floor off", 1.5, 0.0),
+        ("far logits, floor 40", 1.5, 40.0),
+    ] {
+        support.floor = floor;
+        for (n, row) in out.iter_mut().enumerate() {
+            let peak = 80.0 + (n % 10) as f32;
+            for (k, o) in row.iter_mut().enumerate() {
+                *o = -slope * (k as f32 - peak).abs() + 0.01 * (n % 7) as f32;
+            }
+            y[n] = peak - 0.5;
+        }
+        let secs = time(200, || {
+            values(&support, &*out, &mut *probs, &mut q);
+            loss(
+                &support,
+                &*out,
+                &*probs,
+                &q,
+                &y,
+                1.0 / B as f32,
+                &mut *d_out,
+                &mut ce,
+            );
+            black_box(&d_out[0][0]);
+        });
+        rows.push(Row {
+            name: format!("value head {K} atoms, batch {B}, {name}: values + loss"),
+            secs,
+            flops: (B * K * 8) as f64,
+        });
+        let secs = time(200, || {
+            l.backward(&*x, &*d_out, &mut g);
+            l.input_grad(&*d_out, &mut *dx, &mut wt);
+            black_box(&dx[0][0]);
+        });
+        rows.push(Row {
+            name: format!("output layer {H}x{K}, batch {B}, {name}: backward of the gradient"),
+            secs,
+            flops: 4.0 * (B * H * K) as f64,
+        });
+    }
+}
+
 fn main() {
     // `cargo bench --bench kernels -- NAME` runs only the groups whose name contains NAME
-    // (layer, single, actor, critic); `cargo bench` itself passes `--bench`, which is ignored.
+    // (layer, single, actor, critic, value); `cargo bench` itself passes `--bench`, which is ignored.
     let filter = std::env::args()
         .skip(1)
         .find(|a| !a.starts_with('-'))
@@ -377,6 +453,9 @@ fn main() {
         critic_eval_rows::<24, 6, 256, 256>("walker 24/6, 256-256", &mut rows);
         critic_rows::<15, 4, 256, 256>("hopper 15/4, 256-256", &mut rows);
         critic_rows::<15, 4, 64, 64>("mcu 15/4, 64-64", &mut rows);
+    }
+    if on("value") {
+        value_rows(&mut rows);
     }
 
     println!("measured single-core peak (8-wide fused multiply-add): {peak:.1} GFLOP/s");

@@ -107,6 +107,12 @@ pub struct MpoConfig {
     /// effective learning rate stays constant. Residual networks only (the learner refuses it
     /// for networks without the projection).
     pub weight_norm: bool,
+    /// A categorical critic's atoms whose logit lies more than this below the largest get
+    /// probability exactly 0 (`crate::value_head::softmax`): their probability is below
+    /// `e^-floor` of the largest, and left in, it and the gradients made from it fall into
+    /// f32's subnormal range, which x86 cores compute in microcode. 0 = off (every atom
+    /// kept, the head's arithmetic before the floor existed).
+    pub logit_floor: f32,
 }
 
 impl MpoConfig {
@@ -145,6 +151,7 @@ impl MpoConfig {
         value_sigma: 0.75,
         reset_interval: 0,
         weight_norm: false,
+        logit_floor: 40.0,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -231,6 +238,12 @@ impl MpoConfig {
                 requirement: "a finite number >= 0 (0 = two-hot targets)",
             });
         }
+        if !(self.logit_floor.is_finite() && self.logit_floor >= 0.0) {
+            return Err(ConfigError {
+                field: "logit_floor",
+                requirement: "a finite number >= 0 (0 = off)",
+            });
+        }
         if self.std_floor >= self.init_std {
             return Err(ConfigError {
                 field: "std_floor",
@@ -242,7 +255,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 34;
+pub const CONFIG_WORDS: usize = 35;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -285,6 +298,7 @@ impl MpoConfig {
             f(self.value_sigma),
             self.reset_interval,
             self.weight_norm as u32,
+            f(self.logit_floor),
         ]
     }
 
@@ -333,6 +347,7 @@ impl MpoConfig {
             value_sigma: f(w[31]),
             reset_interval: w[32],
             weight_norm: flag(w[33], "weight_norm")?,
+            logit_floor: f(w[34]),
         };
         cfg.validate()?;
         Ok(cfg)
@@ -388,6 +403,7 @@ mod tests {
             value_sigma: 0.0,
             reset_interval: 1000,
             weight_norm: true,
+            logit_floor: 25.5,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();

@@ -31,6 +31,8 @@ pub struct Support {
     pub max: f32,
     /// HL-Gauss's standard deviation in units of the atoms' spacing; 0 = two-hot.
     pub sigma: f32,
+    /// Atoms more than this below the largest logit get probability 0; 0 = off.
+    pub floor: f32,
 }
 
 impl Support {
@@ -40,6 +42,7 @@ impl Support {
             min: cfg.value_min,
             max: cfg.value_max,
             sigma: cfg.value_sigma,
+            floor: cfg.logit_floor,
         }
     }
 
@@ -55,16 +58,34 @@ impl Support {
     }
 }
 
-/// `p = softmax(logits)` (around the largest logit); returns `ln sum_k exp(logits_k)`.
-pub fn softmax<const K: usize>(logits: &[f32; K], p: &mut [f32; K]) -> f32 {
+/// `p = softmax(logits)` (around the largest logit); returns `ln sum_k exp(logits_k)` over
+/// the atoms kept.
+///
+/// Atoms whose logit lies more than `floor` below the largest get exactly 0 (`floor` 0: none
+/// do). Their true probability is below `e^-floor` of the largest one's; left in, it and the
+/// gradients made from it fall into f32's subnormal range once a critic's values sit near an
+/// end of the support (Adam keeps pushing the far atoms' logits down), and x86 cores compute
+/// on subnormal operands in microcode: `cargo bench --bench kernels -- value` measured the
+/// output layer's backward 42x slower on such logits (docs/core.md). A fixed floor gives the
+/// same bits on every target, unlike the processor's flush-to-zero mode. It does change the
+/// bits of a long run (a parameter crossing zero shows the smallest change), so it is a
+/// setting (`MpoConfig::logit_floor`), off for runs made before it.
+pub fn softmax<const K: usize>(logits: &[f32; K], p: &mut [f32; K], floor: f32) -> f32 {
     let mut m = logits[0];
     for &l in &logits[1..] {
         if l > m {
             m = l;
         }
     }
+    // No finite difference lies below -inf: with the floor off every atom takes `exp`.
+    let cut = if floor > 0.0 {
+        -floor
+    } else {
+        f32::NEG_INFINITY
+    };
     for k in 0..K {
-        p[k] = exp(logits[k] - m);
+        let d = logits[k] - m;
+        p[k] = if d < cut { 0.0 } else { exp(d) };
     }
     let s = sum8(p);
     for x in p.iter_mut() {
@@ -89,7 +110,7 @@ pub fn values<const K: usize>(
     }
     let z = support.atoms::<K>();
     for ((o, p), q) in out.iter().zip(probs.iter_mut()).zip(q.iter_mut()) {
-        softmax(o, p);
+        softmax(o, p, support.floor);
         *q = dot8(p, &z);
     }
 }
@@ -146,7 +167,7 @@ pub fn loss<const K: usize>(
         let mut t = [0f32; K];
         project(support, y[n], &mut t);
         let mut scratch = [0f32; K];
-        let lse = softmax(&out[n], &mut scratch);
+        let lse = softmax(&out[n], &mut scratch, support.floor);
         let mut ce = 0f32;
         for k in 0..K {
             ce = mul_add(t[k], lse - out[n][k], ce);

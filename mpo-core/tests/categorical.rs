@@ -21,6 +21,7 @@ const FIVE: Support = Support {
     min: -1.0,
     max: 1.0,
     sigma: 0.0,
+    floor: 40.0,
 };
 
 #[test]
@@ -53,6 +54,7 @@ fn hl_gauss_is_the_gaussian_mass_of_each_bin() {
         min: 0.0,
         max: 2.0,
         sigma: 0.75,
+        floor: 40.0,
     };
     let mut t = [0f32; 3];
     // y = 1: the edges are -2, -2/3, 2/3, 2 standard deviations away. Phi(-2) = 0.0227501,
@@ -96,7 +98,7 @@ fn the_value_is_the_expectation_and_the_gradient_is_p_minus_t() {
         .sum();
     assert!((q[0] as f64 - want).abs() < 1e-6, "{} vs {want}", q[0]);
     let mut scratch = [0f32; 5];
-    let lse = softmax(&out[0], &mut scratch);
+    let lse = softmax(&out[0], &mut scratch, 40.0);
     assert!((lse as f64 - z.ln()).abs() < 1e-6);
     // Target 0.2: t = (0, 0, 0.6, 0.4, 0); loss -sum t ln p, gradient (p - t) / B with B = 4.
     let (mut d, mut l) = ([[0f32; 5]], [0f32]);

@@ -477,3 +477,87 @@ fn residual_categorical_critic_matches_the_reference_and_finite_differences() {
         ..support
     });
 }
+
+/// Logits far below their largest, as a critic's are once its values sit near the support's
+/// top: the head's probabilities, values, losses and gradients hold no subnormal number (x86
+/// cores take those through microcode; see `value_head::softmax`), the atoms beyond the
+/// floor (`MpoConfig::logit_floor`, 40) get exactly 0, and values, losses and gradients still
+/// match the f64 reference. With the floor off (0) the same logits do make subnormals: the
+/// case tests what it is named after.
+#[test]
+fn categorical_head_on_far_logits_has_no_subnormal_and_matches_the_reference() {
+    use mpo_core::value_head::{Support, loss, values};
+    const K: usize = 101;
+    let cfg = MpoConfig {
+        value_min: 0.0,
+        value_max: 100.0,
+        value_sigma: 0.0,
+        ..MpoConfig::REPORT
+    };
+    let support = Support::of(&cfg);
+    // (slope of the logits per atom, the peak's atom, the target): spreads of 50 to 300.
+    let shapes = [
+        (0.5, 95.0, 94.3),
+        (1.5, 99.0, 100.0),
+        (3.0, 3.0, 2.5),
+        (1.0, 50.0, 61.0),
+    ];
+    let mut out = [[0f32; K]; 4];
+    let mut y = [0f32; 4];
+    for (r, &(slope, peak, target)) in shapes.iter().enumerate() {
+        for k in 0..K {
+            out[r][k] = -slope * (k as f32 - peak).abs() + 0.25 * (k % 3) as f32;
+        }
+        y[r] = target;
+    }
+    let (mut probs, mut d_out) = ([[0f32; K]; 4], [[0f32; K]; 4]);
+    let (mut q, mut ce) = ([0f32; 4], [0f32; 4]);
+    // The batch-mean factor of the simba rows' critic batch (256 pairs of 8 actions).
+    let inv_b = 1.0 / 2048.0;
+    values(&support, &out, &mut probs, &mut q);
+    loss(&support, &out, &probs, &q, &y, inv_b, &mut d_out, &mut ce);
+    let tame = |x: f32| x == 0.0 || x.is_normal();
+    for r in 0..4 {
+        let o64: Vec<f64> = out[r].iter().map(|&v| v as f64).collect();
+        let (p64, t64) = (softmax64(&o64), project64::<K>(y[r] as f64, &cfg));
+        let top = out[r].iter().cloned().fold(f32::MIN, f32::max);
+        for k in 0..K {
+            let (p, g) = (probs[r][k], d_out[r][k]);
+            assert!(
+                tame(p) && tame(g),
+                "row {r} atom {k}: p {p:e}, gradient {g:e}"
+            );
+            if out[r][k] - top < -cfg.logit_floor {
+                assert_eq!(p, 0.0, "row {r} atom {k} lies beyond the floor");
+            }
+            let want = (p64[k] - t64[k]) * inv_b as f64;
+            assert!(
+                (g as f64 - want).abs() <= 1e-6 * inv_b as f64,
+                "row {r} atom {k}"
+            );
+        }
+        assert!(tame(q[r]) && tame(ce[r]));
+        assert!(
+            rel_err(q[r] as f64, value64::<K>(&o64, &cfg), 1.0) < 1e-5,
+            "row {r}"
+        );
+        assert!(
+            rel_err(ce[r] as f64, loss64::<K>(&o64, y[r], &cfg), 1.0) < 1e-5,
+            "row {r}"
+        );
+    }
+    let off = Support {
+        floor: 0.0,
+        ..support
+    };
+    values(&off, &out, &mut probs, &mut q);
+    loss(&off, &out, &probs, &q, &y, inv_b, &mut d_out, &mut ce);
+    let subnormal = (probs.iter().chain(&d_out))
+        .flatten()
+        .filter(|x| x.is_subnormal())
+        .count();
+    assert!(
+        subnormal > 50,
+        "only {subnormal} subnormals with the floor off"
+    );
+}

@@ -157,6 +157,12 @@ pub struct MpoSettings {
     /// (residual rows only). Missing in a file or checkpoint written before it existed: off.
     #[serde(default)]
     pub weight_norm: bool,
+    /// A categorical critic's atoms more than this many nats below its largest logit get
+    /// probability 0 (the core's `MpoConfig::logit_floor`: keeps subnormal numbers out of the
+    /// head); 0 = off. Missing in a file or checkpoint written before it existed: 0, as those
+    /// runs trained, so they resume with the same bits.
+    #[serde(default)]
+    pub logit_floor: f64,
 }
 
 impl MpoSettings {
@@ -196,6 +202,7 @@ impl MpoSettings {
         value_sigma: 0.75,
         reset_interval: 0,
         weight_norm: false,
+        logit_floor: 40.0,
     };
 
     fn default_value_min() -> f64 {
@@ -251,6 +258,7 @@ impl MpoSettings {
             value_sigma: self.value_sigma as f32,
             reset_interval: self.reset_interval,
             weight_norm: self.weight_norm,
+            logit_floor: self.logit_floor as f32,
         }
     }
 }
@@ -577,6 +585,17 @@ mod tests {
             d.iter()
                 .any(|s| s.contains("`seed` is 0 in the checkpoint, 3 here"))
         );
+    }
+
+    /// A run's `config.toml` written before the categorical head's floor existed resumes with
+    /// it off, the arithmetic that run trained with.
+    #[test]
+    fn settings_without_the_logit_floor_read_as_off() {
+        let mut table = toml::Table::try_from(MpoSettings::REPORT).unwrap();
+        assert_eq!(table.remove("logit_floor"), Some(toml::Value::Float(40.0)));
+        let old: MpoSettings = table.try_into().unwrap();
+        assert_eq!(old.logit_floor, 0.0);
+        assert_eq!(old.to_config().logit_floor, 0.0);
     }
 
     #[test]
