@@ -68,8 +68,8 @@ impl Support {
 /// on subnormal operands in microcode: `cargo bench --bench kernels -- value` measured the
 /// output layer's backward 42x slower on such logits (docs/core.md). A fixed floor gives the
 /// same bits on every target, unlike the processor's flush-to-zero mode. It does change the
-/// bits of a long run (a parameter crossing zero shows the smallest change), so it is a
-/// setting (`MpoConfig::logit_floor`), off for runs made before it.
+/// bits of a long run (measured in docs/core.md), so it is a setting
+/// (`MpoConfig::logit_floor`), off for runs made before it.
 pub fn softmax<const K: usize>(logits: &[f32; K], p: &mut [f32; K], floor: f32) -> f32 {
     let mut m = logits[0];
     for &l in &logits[1..] {
