@@ -1,6 +1,6 @@
 //! Whole learner updates with the residual networks and the categorical critic: the bits
 //! depend on neither the chunking of the batch nor the threads (as for the MLPs,
-//! `tests/mstep.rs`), the learner learns a contextual bandit, and a periodic reset draws
+//! `tests/mstep.rs`; also with the categorical head's logit floor dropping atoms), the learner learns a contextual bandit, and a periodic reset draws
 //! exactly the networks a fresh initialisation from the learner's stream would, keeping the
 //! observation normalisation; with `weight_norm` every hidden layer's incoming weight vectors
 //! stay on the unit sphere through updates and the heads stay free.
@@ -93,7 +93,7 @@ fn chunked_run<const BC: usize, const C: usize, P: Parallel>(
     (l, log)
 }
 
-fn configs() -> [MpoConfig; 2] {
+fn configs() -> [MpoConfig; 3] {
     let base = MpoConfig {
         value_min: -5.0,
         value_max: 5.0,
@@ -113,6 +113,12 @@ fn configs() -> [MpoConfig; 2] {
             target_tau: 0.05,
             value_sigma: 0.0,
             weight_norm: true,
+            ..base
+        },
+        // A floor low enough that the head drops atoms in every update (40, the default, is
+        // never reached by these short runs).
+        MpoConfig {
+            logit_floor: 0.3,
             ..base
         },
     ]
@@ -135,6 +141,15 @@ fn residual_updates_have_the_same_bits_for_any_chunking_and_thread_count() {
         assert!(a.target_critic.bits_eq(&c.target_critic));
         assert_eq!(a.rng_state, c.rng_state);
     }
+    // The low floor did act: without it the same updates end elsewhere.
+    let [.., low] = configs();
+    let (with, _) = chunked_run::<16, 4, _>(low, &Serial, 12);
+    let off = MpoConfig {
+        logit_floor: 0.0,
+        ..low
+    };
+    let (without, _) = chunked_run::<16, 4, _>(off, &Serial, 12);
+    assert!(!with.live.critic.bits_eq(&without.live.critic));
 }
 
 #[test]
