@@ -32,7 +32,10 @@ ROWS = {
         ("default", "default (MLP)", ["walker-run/default-seed0"]),
         ("simba", "`simba`", [f"walker-run/simba-seed{s}" for s in range(3)]),
     ]),
-    "cheetah-run": (800, [("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)])]),
+    "cheetah-run": (800, [
+        ("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)]),
+        ("simba", "`simba` (seed 0, no logit floor)", ["cheetah-run/simba-seed0"]),
+    ]),
     "hopper-stand": (900, [("default", "default", [f"hopper-stand/eps-penalty-0.01-seed{s}" for s in range(3)])]),
     "hopper-hop": (250, [
         ("mlp", "`mlp` (the default before)", ["hopper-hop/mlp-seed0"] + [f"hopper-hop/eps-penalty-0.01-seed{s}" for s in (1, 2)]),
