@@ -22,7 +22,10 @@ import runs
 HERE = Path(__file__).resolve().parent
 # task -> (target, [(net, label, [run dirs relative to docs/results or the runs root])])
 ROWS = {
-    "cartpole-balance": (995, [("default", "default (64-64)", [f"cartpole-balance/clip-dual-1e-3-seed{s}" for s in range(5)])]),
+    "cartpole-balance": (995, [
+        ("default", "default (64-64)", [f"cartpole-balance/clip-dual-1e-3-seed{s}" for s in range(5)]),
+        ("simba", "`simba`", [f"cartpole-balance/simba-seed{s}" for s in range(3)]),
+    ]),
     "cartpole-swingup": (870, [("default", "default", [f"cartpole-swingup/default-seed{s}" for s in range(3)])]),
     "pendulum-swingup": (820, [("default", "default", [f"pendulum-swingup/clip-critic-actions-seed{s}" for s in range(3)])]),
     "acrobot-swingup": (300, [("default", "default", ["acrobot-swingup/noise-0.95-seed0"])]),
