@@ -7,11 +7,11 @@ RATES.json is what `scripts/bench-rows --threads 1,2 --json RATES.json` wrote: e
 updates/s while learning and environment steps/s, on one thread and on two, measured in one
 window. A row measured in several files takes its rates from the first that has it (so a
 later window adds rows without moving the earlier ones'; its ratios hold within its own
-window). Each row's runs (below: the row's seeds in docs/results, or the frontier's in
-runs/frontier) are read by their updates and environment steps at those rates, as
-`per_hour.py` does: the hours to a run's first evaluation at or above the target, or, where no
-evaluation reaches it, the run's best and the hours it had run. Evaluations and checkpoints
-(under 1% of a run) are left out. Prints a markdown table, one line per row.
+window). Each row's runs (`runs.TASK_ROWS`: the row's seeds in docs/results) are read by
+their updates and environment steps at those rates, as `per_hour.py` does: the hours to a
+run's first evaluation at or above the target, or, where no evaluation reaches it, the run's
+best and the hours it had run. Evaluations and checkpoints (under 1% of a run) are left out.
+Prints a markdown table, one line per row.
 """
 import json
 import sys
@@ -20,33 +20,7 @@ from pathlib import Path
 import runs
 
 HERE = Path(__file__).resolve().parent
-# task -> (target, [(net, label, [run dirs relative to docs/results or the runs root])])
-ROWS = {
-    "cartpole-balance": (995, [
-        ("default", "default (64-64)", [f"cartpole-balance/clip-dual-1e-3-seed{s}" for s in range(5)]),
-        ("simba", "`simba`", [f"cartpole-balance/simba-seed{s}" for s in range(3)]),
-    ]),
-    "cartpole-swingup": (870, [("default", "default", [f"cartpole-swingup/default-seed{s}" for s in range(3)])]),
-    "pendulum-swingup": (820, [("default", "default", [f"pendulum-swingup/clip-critic-actions-seed{s}" for s in range(3)])]),
-    "acrobot-swingup": (300, [("default", "default", ["acrobot-swingup/noise-0.95-seed0"])]),
-    "walker-stand": (970, [("default", "default", [f"walker-stand/default-seed{s}" for s in range(3)])]),
-    "walker-walk": (960, [("default", "default", [f"walker-walk/default-seed{s}" for s in range(3)])]),
-    "walker-run": (700, [
-        ("default", "default (MLP)", ["walker-run/default-seed0"]),
-        ("simba", "`simba`", [f"walker-run/simba-seed{s}" for s in range(3)]),
-    ]),
-    "cheetah-run": (800, [
-        ("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)]),
-        ("simba", "`simba` (seed 0, no logit floor)", ["cheetah-run/simba-seed0"]),
-    ]),
-    "hopper-stand": (900, [("default", "default", [f"hopper-stand/eps-penalty-0.01-seed{s}" for s in range(3)])]),
-    "hopper-hop": (250, [
-        ("mlp", "`mlp` (the default before)", ["hopper-hop/mlp-seed0"] + [f"hopper-hop/eps-penalty-0.01-seed{s}" for s in (1, 2)]),
-        ("simba", "`simba` (the default now)", [f"hopper-hop/simba-seed{s}" for s in range(3)]),
-        ("residual", "`residual` (scalar critic; ablation)", ["hopper-hop/residual-seed0"]),
-        ("categorical", "`categorical` (MLP networks; ablation)", ["hopper-hop/categorical-seed0"]),
-    ]),
-}
+ROWS = runs.TASK_ROWS
 
 
 def hours_to(row, rate):

@@ -1,0 +1,132 @@
+#!/usr/bin/env python3
+"""Where each task stands against the frontier's target and the published agents (issue 35).
+
+Usage: docs/results/scoreboard.py [--runs-root DIR]
+
+One line per row of each task (`runs.TASK_ROWS`: the rows, their seeds' kept runs in
+docs/results and the task's target). A row's figure is the mean +- population std over its
+seeds of the evaluation at the frontier's budget (500k environment steps; 100k for
+cartpole-balance). Where a seed's run stopped before the budget (the rows made before this
+issue had lower budgets of their own), the row gives the mean at the last step every seed
+reached instead, and says so: such a figure does not answer the target. "met" compares the
+budget's mean with the target.
+
+The published figures (mean over their seeds at the same budget) are read from the tables of
+reference.md beside this file, which gives their sources, seeds and step conventions: MPO and
+DMPO from DreamerV3's score files, TD-MPC2, SimBa (SAC + SimBa), SimbaV2, BRO and MR.Q from
+their authors' files. Where the BRO authors' files lack a task, the SimBa authors' BRO runs
+(`results/bro.csv`) fill in, marked with a dagger. `--runs-root DIR` reads the runs from DIR
+instead of docs/results (e.g. runs/frontier, to see unfinished runs; the layout
+TASK/ROW-seedS is the same as docs/results'). Prints markdown.
+"""
+import re
+import statistics
+import sys
+from pathlib import Path
+
+import runs
+
+HERE = Path(__file__).resolve().parent
+
+
+def budget(task):
+    """The frontier's budget for a task, in environment steps."""
+    return 100_000 if task == "cartpole-balance" else 500_000
+
+
+def table(lines, header_has):
+    """The rows (dicts by header cell) of the markdown table whose header contains `header_has`."""
+    start = next(i for i, line in enumerate(lines) if line.startswith("|") and header_has in line)
+    head = [c.strip() for c in lines[start].strip().strip("|").split("|")]
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(dict(zip(head, (c.strip() for c in line.strip().strip("|").split("|")))))
+    return rows
+
+
+def mean_of(cell):
+    """The leading number of a `mean +- std (n)` cell, or None for `n/a`."""
+    m = re.match(r"-?\d+(\.\d+)?", cell or "")
+    return float(m.group(0)) if m else None
+
+
+def published(reference):
+    """task -> {agent: mean at the task's budget} from reference.md's tables."""
+    lines = reference.read_text().splitlines()
+    out = {}
+    for r in table(lines, "SimBa (SAC + SimBa) mean"):
+        task, at = r["task"], r["budget (env steps)"]
+        if at != f"{budget(task) // 1000}k":
+            continue
+        out[task] = {
+            "TD-MPC2": mean_of(r["TD-MPC2 mean +- std (n)"]),
+            "SimBa": mean_of(r["SimBa (SAC + SimBa) mean +- std (n)"]),
+            "SimbaV2": mean_of(r["SimbaV2 mean +- std (n)"]),
+            "MR.Q": mean_of(r["MR.Q mean +- std (n)"]),
+        }
+        bro = mean_of(r["BRO mean +- std (n)"])
+        out[task]["BRO"] = f"{bro:.1f}" if bro is not None else None
+    for r in table(lines, "BRO (`simba` `results/bro.csv`)"):
+        task = r["task"]
+        if r["budget"] == f"{budget(task) // 1000}k" and out[task]["BRO"] is None:
+            out[task]["BRO"] = f"{mean_of(r['BRO (`simba` `results/bro.csv`)']):.1f} †"
+    for r in table(lines, "| task | MPO | DMPO |"):
+        task = r["task"].replace(" @100k", "")
+        if task == "cartpole-balance" and "@100k" not in r["task"]:
+            continue
+        out[task]["MPO"] = mean_of(r["MPO"])
+        out[task]["DMPO"] = mean_of(r["DMPO"])
+    return out
+
+
+def row_figure(root, task, dirs):
+    """(cell text, mean at the budget or None) for one row's seeds."""
+    at = budget(task)
+    curves = [runs.read_rows(str(root / d)) for d in dirs if (root / d / "metrics.csv").exists()]
+    if not curves:
+        return "no run", None
+    common = min(int(c[-1]["env_steps"]) for c in curves)
+    step = at if common >= at else common
+    vals = [float(c[runs.index_at(c, step)]["eval_return_mean"]) for c in curves]
+    text = f"{statistics.fmean(vals):.1f}"
+    if len(vals) > 1:
+        text += f" +- {statistics.pstdev(vals):.1f}"
+    text += f" ({len(vals)})"
+    if step < at:
+        return f"{text} at {step // 1000}k, where the runs stopped", None
+    return text, statistics.fmean(vals)
+
+
+def main():
+    args = sys.argv[1:]
+    if args and args[0] in ("-h", "--help"):
+        print(__doc__.strip())
+        return
+    root = HERE
+    if args[:1] == ["--runs-root"]:
+        root = Path(args[1]).resolve()
+    elif args:
+        sys.exit(f"unknown argument {args[0]} (--help explains)")
+    pub = published(HERE / "reference.md")
+    agents = ["MPO", "DMPO", "TD-MPC2", "SimBa", "SimbaV2", "BRO", "MR.Q"]
+    print("| task (budget) | target | row | this project: mean +- std (seeds) | met | "
+          + " | ".join(agents) + " |")
+    print("|---|---:|---|---|---|" + "---:|" * len(agents))
+    for task, (target, rows) in runs.TASK_ROWS.items():
+        for k, (_net, label, dirs) in enumerate(rows):
+            text, mean = row_figure(root, task, dirs)
+            met = "-" if mean is None else ("**yes**" if mean >= target else "no")
+            if k == 0:
+                name = f"{task} ({budget(task) // 1000}k)"
+                cells = [pub[task].get(a) for a in agents]
+                theirs = " | ".join("n/a" if v is None else (v if isinstance(v, str) else f"{v:.1f}")
+                                    for v in cells)
+            else:
+                name, theirs = "", " | ".join("" for _ in agents)
+            print(f"| {name} | {target if k == 0 else ''} | {label} | {text} | {met} | {theirs} |")
+
+
+if __name__ == "__main__":
+    main()
