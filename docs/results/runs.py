@@ -35,6 +35,9 @@ TASK_ROWS = {
     ]),
 }
 
+# The row each task trains by default (`mpo train --task TASK`), by its `net` above.
+DEFAULT_NET = {task: "simba" if task == "hopper-hop" else "default" for task in TASK_ROWS}
+
 
 def read_rows(run):
     """The rows of `RUN/metrics.csv`, one per evaluation in step order, as dicts of strings."""

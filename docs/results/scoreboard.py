@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where each task stands against the frontier's target and the published agents (issue 35).
 
-Usage: docs/results/scoreboard.py [--runs-root DIR]
+Usage: docs/results/scoreboard.py [--runs-root DIR] [--plot OUT.png]
 
 One line per row of each task (`runs.TASK_ROWS`: the rows, their seeds' kept runs in
 docs/results and the task's target). A row's figure is the mean +- population std over its
@@ -18,9 +18,15 @@ their authors' files. Where the BRO authors' files lack a task, the SimBa author
 (`results/bro.csv`) fill in, marked with a dagger. `--runs-root DIR` reads the runs from DIR
 instead of docs/results (e.g. runs/frontier, to see unfinished runs; the layout
 TASK/ROW-seedS is the same as docs/results'). Prints markdown.
+
+`--plot OUT.png` also draws each task's default row (`runs.DEFAULT_NET`; the mean over its seeds,
++-1 std over them, the seeds behind) in a panel of its own against the target (dashed), over
+at least the budget, with `mpo plot --by-task --mean` (the release binary of this checkout,
+target/release/mpo: build it first).
 """
 import re
 import statistics
+import subprocess
 import sys
 from pathlib import Path
 
@@ -99,16 +105,33 @@ def row_figure(root, task, dirs):
     return text, statistics.fmean(vals)
 
 
+def plot(root, out):
+    """Each task's default row against its target, one panel per task (`mpo plot`)."""
+    cmd = [str(HERE.parent.parent / "target" / "release" / "mpo"), "plot", "--by-task", "--mean",
+           "--out", str(out), "--title", "MPO: each task's default row against the frontier's target"]
+    for task, (target, rows) in runs.TASK_ROWS.items():
+        dirs = next(d for net, _label, d in rows if net == runs.DEFAULT_NET[task])
+        cmd += ["--target", f"{task}={target}", "--budget", f"{task}={budget(task)}"]
+        cmd += [str(root / d) for d in dirs if (root / d / "metrics.csv").exists()]
+    subprocess.run(cmd, check=True, stdout=sys.stderr)
+
+
 def main():
     args = sys.argv[1:]
     if args and args[0] in ("-h", "--help"):
         print(__doc__.strip())
         return
-    root = HERE
-    if args[:1] == ["--runs-root"]:
-        root = Path(args[1]).resolve()
-    elif args:
-        sys.exit(f"unknown argument {args[0]} (--help explains)")
+    root, out = HERE, None
+    while args:
+        if args[0] == "--runs-root" and len(args) > 1:
+            root = Path(args[1]).resolve()
+        elif args[0] == "--plot" and len(args) > 1:
+            out = Path(args[1]).resolve()
+        else:
+            sys.exit(f"unknown argument {args[0]} (--help explains)")
+        args = args[2:]
+    if out is not None:
+        plot(root, out)
     pub = published(HERE / "reference.md")
     agents = ["MPO", "DMPO", "TD-MPC2", "SimBa", "SimbaV2", "BRO", "MR.Q"]
     print("| task (budget) | target | row | this project: mean +- std (seeds) | met | "
