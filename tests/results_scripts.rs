@@ -1,0 +1,154 @@
+//! The scripts that turn kept runs into the docs' tables (`docs/results/*.py`) and the
+//! frontier's plan (`scripts/frontier`) still read what the repository holds: each is run
+//! here on the real files and its output checked against what it must say. They break
+//! silently otherwise: a table's header edited in reference.md, a kept run renamed, a run
+//! planned twice.
+
+use std::path::Path;
+use std::process::Command;
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs a script of the repository with arguments; its standard output, or a panic with
+/// its standard error.
+fn run(script: &str, args: &[&str], envs: &[(&str, &Path)]) -> String {
+    let mut cmd = Command::new("python3");
+    cmd.arg(root().join(script)).args(args).current_dir(root());
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().expect("python3 runs");
+    assert!(
+        out.status.success(),
+        "{script} {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).expect("utf-8 output")
+}
+
+/// The markdown table's data rows, as cells.
+fn table_rows(md: &str) -> Vec<Vec<String>> {
+    md.lines()
+        .filter(|l| l.starts_with('|') && !l.starts_with("|---"))
+        .skip(1)
+        .map(|l| {
+            l.trim()
+                .trim_matches('|')
+                .split('|')
+                .map(|c| c.trim().to_string())
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn the_scoreboard_gives_every_task_its_rows_and_the_published_agents() {
+    let md = run("docs/results/scoreboard.py", &[], &[]);
+    let rows = table_rows(&md);
+    let tasks: Vec<&str> = rows
+        .iter()
+        .map(|r| r[0].as_str())
+        .filter(|t| !t.is_empty())
+        .collect();
+    assert_eq!(tasks.len(), 10, "one first line per task:\n{md}");
+    for r in &rows {
+        assert_eq!(r.len(), 12, "12 cells per line: {r:?}");
+        if r[0].is_empty() {
+            continue;
+        }
+        // The first line of a task carries every published figure: a number or n/a, never
+        // an empty cell (which is what a renamed column in reference.md would give).
+        for cell in &r[5..] {
+            let lead = cell.trim_end_matches(" †");
+            assert!(
+                lead == "n/a" || lead.parse::<f64>().is_ok(),
+                "{}: published cell {cell:?}",
+                r[0]
+            );
+        }
+    }
+    // hopper-hop's default row over its three seeds at 500k: 305.0, 283.0, 200.7 (the kept
+    // metrics.csv files), so its mean is 262.9 and the target 250 is met.
+    let hop = rows
+        .iter()
+        .find(|r| r[2].starts_with("`simba` (the default now)"))
+        .expect("hopper-hop's simba row");
+    assert!(hop[3].starts_with("262.9 +- "), "{hop:?}");
+    assert_eq!(hop[4], "**yes**");
+    // A row whose runs stopped before the budget says so and answers no target.
+    let swing = rows
+        .iter()
+        .find(|r| r[0].starts_with("cartpole-swingup"))
+        .unwrap();
+    assert!(swing[3].contains("where the runs stopped"), "{swing:?}");
+    assert_eq!(swing[4], "-");
+}
+
+#[test]
+fn the_wall_clock_table_reads_every_row_it_has_rates_for() {
+    let md = run(
+        "docs/results/wall_clock.py",
+        &[
+            "docs/results/rates.json",
+            "docs/results/rates-hopper-hop-ablation.json",
+            "docs/results/rates-simba-rows.json",
+        ],
+        &[],
+    );
+    let rows = table_rows(&md);
+    assert!(rows.len() >= 10, "{md}");
+    for r in &rows {
+        assert_ne!(r[3], "not measured", "a row without rates: {r:?}");
+    }
+}
+
+#[test]
+fn the_frontier_plans_each_run_once_and_starts_with_what_is_missing() {
+    let empty = std::env::temp_dir().join(format!("frontier-plan-{}", std::process::id()));
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = run("scripts/frontier", &["list"], &[("FRONTIER_DIR", &empty)]);
+    let _ = std::fs::remove_dir_all(&empty);
+    let names: Vec<&str> = out
+        .lines()
+        .skip(1)
+        .map(|l| l.split_whitespace().next().unwrap())
+        .collect();
+    let mut unique = names.clone();
+    unique.sort();
+    unique.dedup();
+    assert_eq!(unique.len(), names.len(), "a run planned twice:\n{out}");
+    // Three seeds of `simba` on the four hardest tasks and one on each of the other six
+    // (three on cartpole-balance), as the plan's docstring says.
+    for task in [
+        "hopper-hop",
+        "walker-run",
+        "cheetah-run",
+        "acrobot-swingup",
+        "cartpole-balance",
+    ] {
+        for s in 0..3 {
+            let name = format!("{task}/simba/seed{s}");
+            assert!(names.contains(&name.as_str()), "{name} not planned");
+        }
+    }
+    for task in [
+        "cartpole-swingup",
+        "pendulum-swingup",
+        "hopper-stand",
+        "walker-stand",
+        "walker-walk",
+    ] {
+        assert!(names.contains(&format!("{task}/simba/seed0").as_str()));
+    }
+    // With no runs/ the runs kept in docs/results count as done: their line says so.
+    let kept = out
+        .lines()
+        .find(|l| l.starts_with("hopper-hop/simba/seed0 "))
+        .unwrap();
+    assert!(
+        kept.contains("(kept in docs/results/hopper-hop/simba-seed0)"),
+        "{kept}"
+    );
+}
