@@ -110,11 +110,18 @@ fn the_frontier_plans_each_run_once_and_starts_with_what_is_missing() {
     std::fs::create_dir_all(&empty).unwrap();
     let out = run("scripts/frontier", &["list"], &[("FRONTIER_DIR", &empty)]);
     let _ = std::fs::remove_dir_all(&empty);
+    // One line per run, then a blank line and the hours the plan has left.
     let names: Vec<&str> = out
         .lines()
         .skip(1)
+        .take_while(|l| !l.is_empty())
         .map(|l| l.split_whitespace().next().unwrap())
         .collect();
+    let total = out.lines().last().unwrap();
+    assert!(
+        total.contains("runs unfinished: about") && total.contains("hours of one thread"),
+        "{total}"
+    );
     let mut unique = names.clone();
     unique.sort();
     unique.dedup();
