@@ -19,6 +19,18 @@
 //! then one fma per inner unit in ascending order). Backward, with `g` the gradient at
 //! `x_(d+1)`: `d_h = (g W_down^T) [h > 0]`, `d_y = d_h W_up^T`, and the gradient at `x_d` is
 //! `g + norm_backward(d_y)`.
+//!
+//! What these networks take from SimbaV2 (Lee et al., 2025, "Hyperspherical Normalization for
+//! Scalable Deep Reinforcement Learning"), and what not. Taken, as an option: its weights on
+//! the unit sphere ([`crate::hypersphere`], `MpoConfig::weight_norm`), which holds a step at
+//! one fraction of a weight for the whole run. Not taken: its features projected onto the
+//! sphere after every layer, its residual as a learnt interpolation `x + alpha (f(x) - x)`
+//! re-projected, and its learnt scalers. Here every weight layer already reads a layer norm's
+//! output (each block's pre-norm, the final norm before the heads), which, like the
+//! projection, removes the scale of what it normalises; what differs is the mean subtraction,
+//! the gain and bias in place of the scalers, and the additive residual. Taking the rest would
+//! be a second network family (other parameters, checkpoints, export and firmware code) whose
+//! worth only long runs could show.
 
 mod actor;
 #[cfg(feature = "train")]
