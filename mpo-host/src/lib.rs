@@ -39,6 +39,7 @@ pub mod train;
 pub mod trainer;
 pub mod training;
 pub mod video;
+pub mod weight_growth;
 
 pub use app::main_with;
 

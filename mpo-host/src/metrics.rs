@@ -83,7 +83,15 @@ pub struct MetricsRow {
     /// Mean learner statistics since the previous row, in [`STAT_NAMES`] order (NaN, written
     /// as `null`/empty, before learning starts).
     pub stats: Vec<Option<f64>>,
+    /// How far the online policy's and critic's hidden weights have grown since
+    /// initialisation, `[actor, critic]` ([`crate::weight_growth`]); `None` in the rows of runs
+    /// made before it was logged (an empty cell).
+    #[serde(default)]
+    pub weight_growth: Option<[f64; 2]>,
 }
+
+/// The columns of `metrics.csv` after the learner statistics: [`MetricsRow::weight_growth`].
+const GROWTH_COLUMNS: [&str; 2] = ["actor_weight_growth", "critic_weight_growth"];
 
 /// The columns of `metrics.csv` before the learner statistics.
 const COLUMNS: [&str; 8] = [
@@ -101,7 +109,12 @@ const COLUMNS: [&str; 8] = [
 /// resumed run never leaves rows of an abandoned future behind).
 pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
     let mut csv = csv::Writer::from_writer(Vec::new());
-    csv.write_record(COLUMNS.iter().chain(STAT_NAMES.iter()))?;
+    csv.write_record(
+        COLUMNS
+            .iter()
+            .chain(STAT_NAMES.iter())
+            .chain(GROWTH_COLUMNS.iter()),
+    )?;
     let mut jsonl = String::new();
     for r in rows {
         let mut record = vec![
@@ -120,6 +133,11 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
                 .iter()
                 .map(|v| v.map(|x| x.to_string()).unwrap_or_default()),
         );
+        record.extend((0..GROWTH_COLUMNS.len()).map(|i| {
+            r.weight_growth
+                .map(|g| g[i].to_string())
+                .unwrap_or_default()
+        }));
         csv.write_record(&record)?;
         let mut obj = serde_json::Map::new();
         obj.insert("env_steps".into(), r.env_steps.into());
@@ -132,6 +150,9 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
         obj.insert("updates_per_s".into(), r.updates_per_s.into());
         for (n, v) in STAT_NAMES.iter().zip(&r.stats) {
             obj.insert((*n).into(), (*v).into());
+        }
+        for (i, n) in GROWTH_COLUMNS.iter().enumerate() {
+            obj.insert((*n).into(), r.weight_growth.map(|g| g[i]).into());
         }
         jsonl.push_str(&serde_json::Value::Object(obj).to_string());
         jsonl.push('\n');

@@ -348,6 +348,7 @@ impl<'r> Session<'r> {
             env_steps_per_s: (t.env_steps() - self.mark.1) as f64 / dt,
             updates_per_s: (t.updates() - self.mark.2) as f64 / dt,
             stats,
+            weight_growth: Some(t.weight_growth()),
         });
         self.last_eval = (mean, std);
         if let Some(strips) = &self.req.render {

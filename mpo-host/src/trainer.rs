@@ -32,6 +32,7 @@ use crate::sizes::Sizes;
 use crate::time_split::{Laps, TimeSplit};
 use crate::training::{StepError, TrainError};
 use crate::training::{Training, TrainingInit};
+use crate::weight_growth;
 
 pub use crate::collection::agent_schedule;
 use crate::collection::{STREAM_SALT, env_step};
@@ -771,6 +772,13 @@ impl<
     fn param_count(&self) -> usize {
         let l = &self.agent.learner.live;
         l.actor.len() + l.critic.len()
+    }
+    fn weight_growth(&self) -> [f64; 2] {
+        let (l, s) = (&self.agent.learner.live, self.sizes());
+        [
+            weight_growth::growth(&l.actor, &checkpoint::actor_layout(&s)),
+            weight_growth::growth(&l.critic, &checkpoint::critic_layout(&s)),
+        ]
     }
     fn attach_device(&mut self, dev: Device, settings: &Settings) -> Result<(), TrainError> {
         Trainer::attach_device(self, dev, settings)

@@ -68,6 +68,9 @@ pub trait Training {
     fn take_link(&mut self) -> Option<Link>;
     /// Scalar parameters of actor and critic (what a device sends back).
     fn param_count(&self) -> usize;
+    /// How far the online actor's and critic's hidden weights have grown since initialisation
+    /// ([`crate::weight_growth`]): `[actor, critic]`, about 1 for fresh networks.
+    fn weight_growth(&self) -> [f64; 2];
     /// Learns on a device program from now on (a fresh run).
     fn attach_device(&mut self, dev: Device, settings: &Settings) -> Result<(), TrainError>;
     /// The device link's counters, when learning on one.

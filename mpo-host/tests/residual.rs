@@ -65,6 +65,17 @@ fn a_residual_categorical_run_repeats_its_bits_on_any_thread_count_and_after_a_r
     assert_eq!(eval["return_mean"], one["eval_return_mean"]);
 }
 
+/// A column of a run's `metrics.csv`, by name, one value per evaluation.
+fn column(run: &Path, name: &str) -> Vec<f64> {
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let i = header.iter().position(|h| *h == name).expect(name);
+    lines
+        .map(|l| l.split(',').nth(i).unwrap().parse().unwrap())
+        .collect()
+}
+
 #[test]
 fn weights_on_the_sphere_are_a_runs_setting_kept_by_its_checkpoint() {
     let d = scratch("residual-sphere");
@@ -76,6 +87,25 @@ fn weights_on_the_sphere_are_a_runs_setting_kept_by_its_checkpoint() {
     // Resumed without the --set: the checkpoint's settings hold it.
     let resumed = resume(&d.join("half"), 2000);
     assert_eq!(resumed["params_sha256"], full["params_sha256"]);
+    // The logged weight growth: a fresh network's hidden columns have about their expected
+    // norm at initialisation (1); on the sphere every hidden column has norm 1, which is
+    // sqrt(3) times that, at every evaluation; a resumed run logs the same figures.
+    for net in ["actor_weight_growth", "critic_weight_growth"] {
+        let fresh = column(&d.join("plain"), net)[0];
+        assert!(
+            (fresh - 1.0).abs() < 0.1,
+            "{net} of fresh networks: {fresh}"
+        );
+        let sphere = column(&d.join("full"), net);
+        assert!(sphere.len() >= 2, "{sphere:?}");
+        for g in &sphere {
+            assert!(
+                (g - 3f64.sqrt()).abs() < 1e-3,
+                "{net} on the sphere: {sphere:?}"
+            );
+        }
+        assert_eq!(column(&d.join("half"), net), sphere);
+    }
     // An MLP row refuses it, naming the setting.
     let out = mpo(&[
         "train",
