@@ -5,9 +5,10 @@
 //! smaller fraction of them, and where a layer norm downstream undoes their scale (the residual
 //! networks' next block and final norm) that fraction is all the step changes: the effective
 //! learning rate decays as the run goes, one of the two signs of lost plasticity
-//! (docs/experiments.md, "Dormant units and grown weights"; `mpo.weight_norm` holds it at 1,
-//! `mpo.reset_interval` sets it back). Logged at every evaluation, it shows when the growth
-//! happens, not only where a run ended.
+//! (docs/experiments.md, "Dormant units and grown weights"; `mpo.weight_norm` holds it
+//! constant, at `sqrt(3)`: every column at unit norm; `mpo.reset_interval` sets it back to
+//! about 1). Logged at every evaluation, it shows when the growth happens, not only where a
+//! run ended.
 //!
 //! The figure: for each hidden layer (every weight matrix but the heads: the policy's mean and
 //! Cholesky factor, the critic's output), the mean over its output units of the L2 norm of the
