@@ -285,6 +285,13 @@ pub struct PlotArgs {
     /// the mean at the last such step, with each run's return there.
     #[arg(long)]
     pub mean: bool,
+    /// The metrics column to draw instead of the evaluation return: any column of
+    /// `metrics.csv`, e.g. `critic_weight_growth`, `q_mean`, `std_mean`, `critic_loss`
+    /// (docs/training.md lists them). Its axis fits the data; evaluations where the column is
+    /// empty (before learning starts, or rows written before the column existed) are left
+    /// out [default: eval_return_mean, with its +-1 std band over the evaluation episodes].
+    #[arg(long, value_name = "COLUMN")]
+    pub metric: Option<String>,
 }
 
 /// `mpo train`.

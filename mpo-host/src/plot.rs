@@ -43,7 +43,7 @@ pub fn write_curve(path: &Path, title: &str, rows: &[MetricsRow]) -> Result<(), 
         .iter()
         .map(|r| (r.env_steps, r.eval_return_mean, r.eval_return_std))
         .collect();
-    write_curves(path, title, &[(String::new(), points)], None)
+    write_curves(path, title, &[(String::new(), points)], None, None)
 }
 
 /// The mean over runs (`mpo plot --mean`): at each evaluation step that every one of `series`
@@ -82,6 +82,9 @@ pub struct Panel {
     /// The mean over the runs ([`mean_over_runs`]), labelled: when given, it is the panel's
     /// bold curve with its band, and the runs are drawn as thin lines behind it.
     pub mean: Option<Series>,
+    /// The metrics column drawn when it is not the evaluation return (`mpo plot --metric`):
+    /// the y axis's label, and an axis fitted to the data instead of the return's 0-1000.
+    pub metric: Option<String>,
 }
 
 /// Draws several learning curves (e.g. seeds) into one chart, with a legend when labelled,
@@ -91,6 +94,7 @@ pub fn write_curves(
     title: &str,
     series: &[Series],
     mean: Option<Series>,
+    metric: Option<&str>,
 ) -> Result<(), String> {
     if !register_font() {
         return Err(format!("no TrueType font found (tried {FONT_PATHS:?})"));
@@ -103,6 +107,7 @@ pub fn write_curves(
         target: None,
         budget: None,
         mean,
+        metric: metric.map(str::to_string),
     };
     draw_panel(&root, &panel, 22)?;
     root.present().map_err(|x| x.to_string())
@@ -139,6 +144,28 @@ pub fn write_panels(path: &Path, title: &str, panels: &[Panel]) -> Result<(), St
 /// the data's range rounded out to a power of ten near a tenth of its span (Gymnasium's returns: Pendulum-v1's
 /// -1500-0, HalfCheetah's thousands).
 fn y_range(series: &[Series], mean: Option<&Series>, target: Option<f64>) -> (f64, f64) {
+    let (lo, hi) = data_range(series, mean, target);
+    if !(lo.is_finite() && hi.is_finite()) || (lo >= 0.0 && hi <= 1000.0) {
+        return (0.0, 1000.0);
+    }
+    let step = 10f64.powf(((hi - lo).max(10.0) / 10.0).log10().floor());
+    let (lo, hi) = ((lo / step).floor() * step, (hi / step).ceil() * step);
+    (lo.min(0.0), if hi > 0.0 { hi } else { 0.0 })
+}
+
+/// Another metric's axis: the data's range with a twentieth of its span on each side (a
+/// flat curve gets a unit around it), so a weight growth of 1-3 or a loss near 0.01 reads.
+fn metric_range(series: &[Series], mean: Option<&Series>, target: Option<f64>) -> (f64, f64) {
+    let (lo, hi) = data_range(series, mean, target);
+    if !(lo.is_finite() && hi.is_finite()) {
+        return (0.0, 1.0);
+    }
+    let pad = if hi > lo { (hi - lo) / 20.0 } else { 0.5 };
+    (lo - pad, hi + pad)
+}
+
+/// The smallest and largest value of every curve and band (and the target line).
+fn data_range(series: &[Series], mean: Option<&Series>, target: Option<f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for (_, pts) in series.iter().chain(mean) {
         for &(_, m, sd) in pts {
@@ -149,12 +176,7 @@ fn y_range(series: &[Series], mean: Option<&Series>, target: Option<f64>) -> (f6
     if let Some(t) = target {
         (lo, hi) = (lo.min(t), hi.max(t));
     }
-    if !(lo.is_finite() && hi.is_finite()) || (lo >= 0.0 && hi <= 1000.0) {
-        return (0.0, 1000.0);
-    }
-    let step = 10f64.powf(((hi - lo).max(10.0) / 10.0).log10().floor());
-    let (lo, hi) = ((lo / step).floor() * step, (hi / step).ceil() * step);
-    (lo.min(0.0), if hi > 0.0 { hi } else { 0.0 })
+    (lo, hi)
 }
 
 /// One chart in `area`: each series as its mean line, points and +-1 std band, the x axis to
@@ -171,6 +193,7 @@ fn draw_panel(
         target,
         budget,
         mean,
+        metric,
     } = panel;
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let xmax = series
@@ -180,7 +203,12 @@ fn draw_panel(
         .max()
         .unwrap_or(1)
         .max(1) as f64;
-    let (ylo, yhi) = y_range(series, mean.as_ref(), *target);
+    let (ylo, yhi) = match metric {
+        None => y_range(series, mean.as_ref(), *target),
+        Some(_) => metric_range(series, mean.as_ref(), *target),
+    };
+    // As many decimals as the axis's span needs (a return's none, a growth of 1-3 two).
+    let decimals = (2.0 - (yhi - ylo).log10().floor()).clamp(0.0, 6.0) as usize;
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", caption))
         .margin(12)
@@ -191,10 +219,10 @@ fn draw_panel(
     chart
         .configure_mesh()
         .x_desc("environment steps")
-        .y_desc("evaluation return")
+        .y_desc(metric.as_deref().unwrap_or("evaluation return"))
         .label_style(("sans-serif", 14))
         .x_label_formatter(&|x| steps_label(*x))
-        .y_label_formatter(&|y| format!("{y:.0}"))
+        .y_label_formatter(&|y| format!("{y:.decimals$}"))
         .draw()
         .map_err(|x| e(&x))?;
     if let &Some(y) = target {

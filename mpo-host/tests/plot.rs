@@ -245,3 +245,60 @@ fn mean_refuses_runs_that_share_no_evaluation_step() {
     assert!(err.contains("none of the runs given"), "{err}");
     assert!(!png.exists(), "nothing is drawn after an error");
 }
+
+#[test]
+fn metric_draws_another_column_and_skips_the_evaluations_without_it() {
+    let d = scratch("plot-metric");
+    // Two runs' JSON lines with a `q_mean` that is null before learning (step 0), and one
+    // run kept as `metrics.csv` only, whose first `q_mean` cell is empty.
+    let mut names = Vec::new();
+    for (name, q) in [("a", [2.0, 4.0]), ("b", [4.0, 8.0])] {
+        let dir = d.join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let lines = [
+            r#"{"env_steps":0,"eval_return_mean":0,"eval_return_std":0,"q_mean":null}"#.into(),
+            format!(
+                r#"{{"env_steps":10000,"eval_return_mean":5,"eval_return_std":1,"q_mean":{}}}"#,
+                q[0]
+            ),
+            format!(
+                r#"{{"env_steps":20000,"eval_return_mean":9,"eval_return_std":1,"q_mean":{}}}"#,
+                q[1]
+            ),
+        ];
+        std::fs::write(dir.join("metrics.jsonl"), lines.join("\n")).unwrap();
+        names.push(dir);
+    }
+    let c = d.join("c");
+    std::fs::create_dir_all(&c).unwrap();
+    std::fs::write(
+        c.join("metrics.csv"),
+        "env_steps,eval_return_mean,eval_return_std,q_mean\n0,0,0,\n10000,5,1,3\n20000,9,1,9\n",
+    )
+    .unwrap();
+    names.push(c);
+    let names: Vec<&str> = names.iter().map(|p| s(p)).collect();
+    let png = d.join("q.png");
+    let mut args = vec!["--metric", "q_mean", "--mean", "--out", s(&png)];
+    args.extend(&names);
+    let out = plot(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The mean at 20k over 4, 8 and 9 (step 0 left out: no run has a number there).
+    let sd = (((4.0f64 - 7.0).powi(2) + 1.0 + 4.0) / 3.0).sqrt();
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).trim(),
+        format!("runs: mean of 3 runs at 20000 steps: 7.0 +- {sd:.1} (a 4.0, b 8.0, c 9.0)")
+    );
+    // The return of the same runs is another picture.
+    let ret = draw(&d, "ret.png", &names);
+    assert_ne!(std::fs::read(&png).unwrap(), ret.0);
+    // A column no run has is named in the error, from either file.
+    for run in [names[0], names[2]] {
+        let err = err_text(&plot(&["--metric", "q_meen", "--out", s(&png), run]));
+        assert!(err.contains("q_meen"), "{err}");
+    }
+}

@@ -11,9 +11,10 @@ fn str_value(t: &toml::Table, k: &str) -> Option<String> {
 /// `mpo plot`: one curve per run directory, labelled with the directory's name; with
 /// `--by-task`, one panel per task.
 pub fn plot(args: &PlotArgs) -> Result<(), Error> {
+    let metric = args.metric.as_deref().filter(|m| *m != RETURN);
     let mut runs = Vec::new();
     for dir in &args.runs {
-        runs.push(read_run_curve(dir)?);
+        runs.push(read_run_curve(dir, metric)?);
     }
     if args.by_task {
         return plot_by_task(args, runs);
@@ -35,7 +36,7 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
         .then(|| mean_of_runs(what, &series))
         .transpose()?
         .unzip();
-    crate::plot::write_curves(&args.out, &title, &series, mean).map_err(Error::Plot)?;
+    crate::plot::write_curves(&args.out, &title, &series, mean, metric).map_err(Error::Plot)?;
     // Only after the image is written, so a refused or failed command prints no figure.
     line.iter().for_each(|l| println!("{l}"));
     Ok(())
@@ -92,6 +93,7 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
                 target: None,
                 budget: None,
                 mean: None,
+                metric: args.metric.clone().filter(|m| m != RETURN),
             }),
         }
     }
@@ -152,18 +154,31 @@ fn panel_setting<'a>(
     Ok((panel, value))
 }
 
+/// The column drawn by default, with its band from [`RETURN_STD`].
+const RETURN: &str = "eval_return_mean";
+/// The spread over the evaluation episodes: the default curve's band.
+const RETURN_STD: &str = "eval_return_std";
+
 /// One run's curve: its label (the directory's name), `(env_steps, mean, std)` per evaluation
 /// from `metrics.jsonl` (or `metrics.csv` without it), and its task from `config.toml` when there is one.
 type RunCurve = (String, Vec<(u64, f64, f64)>, Option<String>);
 
-fn read_run_curve(dir: &std::path::Path) -> Result<RunCurve, Error> {
+/// The curve of `metric` (`None`: the evaluation return and its band) of the run in `dir`.
+fn read_run_curve(dir: &std::path::Path, metric: Option<&str>) -> Result<RunCurve, Error> {
     let jsonl = dir.join("metrics.jsonl");
     let csv = dir.join("metrics.csv");
     let pts = if jsonl.exists() || !csv.exists() {
-        jsonl_points(&jsonl)?
+        jsonl_points(&jsonl, metric)?
     } else {
-        csv_points(&csv)?
+        csv_points(&csv, metric)?
     };
+    if pts.is_empty() {
+        return Err(Error::Plot(format!(
+            "{}: no evaluation has a value of `{}`",
+            dir.display(),
+            metric.unwrap_or(RETURN)
+        )));
+    }
     let task = settings::read_table(&dir.join("config.toml"))
         .ok()
         .and_then(|t| str_value(&t, "task"));
@@ -174,11 +189,16 @@ fn read_run_curve(dir: &std::path::Path) -> Result<RunCurve, Error> {
     Ok((label, pts, task))
 }
 
-/// `(env_steps, mean, std)` per line of a `metrics.jsonl`.
-fn jsonl_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
+/// `(env_steps, mean, std)` per line of a `metrics.jsonl`: the evaluation return and its
+/// spread, or `metric` (std 0) on the lines where it is a number (`null` before learning).
+fn jsonl_points(
+    path: &std::path::Path,
+    metric: Option<&str>,
+) -> Result<Vec<(u64, f64, f64)>, Error> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| Error::Plot(format!("{}: {e}", path.display())))?;
     let mut pts = Vec::new();
+    let mut seen = false;
     for (i, line) in text.lines().enumerate() {
         let v: serde_json::Value = serde_json::from_str(line)
             .map_err(|e| Error::Plot(format!("{} line {}: {e}", path.display(), i + 1)))?;
@@ -191,18 +211,29 @@ fn jsonl_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
                 ))
             })
         };
-        pts.push((
-            get("env_steps")? as u64,
-            get("eval_return_mean")?,
-            get("eval_return_std")?,
-        ));
+        let step = get("env_steps")? as u64;
+        match metric {
+            None => pts.push((step, get(RETURN)?, get(RETURN_STD)?)),
+            Some(m) => {
+                seen |= v.get(m).is_some();
+                if let Some(x) = v.get(m).and_then(|x| x.as_f64()) {
+                    pts.push((step, x, 0.0));
+                }
+            }
+        }
+    }
+    if let Some(m) = metric.filter(|_| !seen) {
+        return Err(Error::Plot(format!(
+            "{}: no `{m}` in any line",
+            path.display()
+        )));
     }
     Ok(pts)
 }
 
 /// The same from a `metrics.csv` (for run directories kept without their JSON lines): the
-/// columns found by name in the header.
-fn csv_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
+/// columns found by name in the header; `metric`'s empty cells are left out.
+fn csv_points(path: &std::path::Path, metric: Option<&str>) -> Result<Vec<(u64, f64, f64)>, Error> {
     let bad = |m: String| Error::Plot(format!("{}: {m}", path.display()));
     let mut reader = csv::Reader::from_path(path).map_err(|e| bad(e.to_string()))?;
     let header = reader.headers().map_err(|e| bad(e.to_string()))?.clone();
@@ -212,22 +243,28 @@ fn csv_points(path: &std::path::Path) -> Result<Vec<(u64, f64, f64)>, Error> {
             .position(|h| h == k)
             .ok_or_else(|| bad(format!("no column `{k}` in the header")))
     };
-    let cols = [
-        col("env_steps")?,
-        col("eval_return_mean")?,
-        col("eval_return_std")?,
-    ];
+    let step = col("env_steps")?;
+    let (value, spread) = match metric {
+        None => (col(RETURN)?, Some(col(RETURN_STD)?)),
+        Some(m) => (col(m)?, None),
+    };
     let mut pts = Vec::new();
     for (i, record) in reader.records().enumerate() {
         let record = record.map_err(|e| bad(e.to_string()))?;
-        let mut v = [0.0; 3];
-        for (x, &c) in v.iter_mut().zip(&cols) {
-            *x = record
-                .get(c)
-                .and_then(|s| s.trim().parse().ok())
-                .ok_or_else(|| bad(format!("line {}: column {c} is not a number", i + 2)))?;
+        let cell = |c: usize| record.get(c).map(str::trim).unwrap_or("");
+        let number = |c: usize| {
+            cell(c)
+                .parse::<f64>()
+                .map_err(|_| bad(format!("line {}: column {c} is not a number", i + 2)))
+        };
+        if metric.is_some() && cell(value).is_empty() {
+            continue;
         }
-        pts.push((v[0] as u64, v[1], v[2]));
+        let sd = match spread {
+            Some(c) => number(c)?,
+            None => 0.0,
+        };
+        pts.push((number(step)? as u64, number(value)?, sd));
     }
     Ok(pts)
 }
