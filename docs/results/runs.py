@@ -7,26 +7,46 @@ import csv
 import sys
 
 
-# task -> (target, [(net, label, [run dirs relative to docs/results or the runs root])])
+# task -> (target, [(net, label, [run dirs relative to docs/results])]). A row lists its
+# planned seeds too (scripts/frontier): the scripts read the dirs that exist (kept with
+# `scripts/frontier keep`) and leave out a row none of whose runs is kept yet.
 TASK_ROWS = {
     "cartpole-balance": (995, [
         ("default", "default (64-64)", [f"cartpole-balance/clip-dual-1e-3-seed{s}" for s in range(5)]),
         ("simba", "`simba`", [f"cartpole-balance/simba-seed{s}" for s in range(3)]),
     ]),
-    "cartpole-swingup": (870, [("default", "default", [f"cartpole-swingup/default-seed{s}" for s in range(3)])]),
-    "pendulum-swingup": (820, [("default", "default", [f"pendulum-swingup/clip-critic-actions-seed{s}" for s in range(3)])]),
-    "acrobot-swingup": (300, [("default", "default", ["acrobot-swingup/noise-0.95-seed0"])]),
-    "walker-stand": (970, [("default", "default", [f"walker-stand/default-seed{s}" for s in range(3)])]),
-    "walker-walk": (960, [("default", "default", [f"walker-walk/default-seed{s}" for s in range(3)])]),
+    "cartpole-swingup": (870, [
+        ("default", "default", [f"cartpole-swingup/default-seed{s}" for s in range(3)]),
+        ("simba", "`simba`", ["cartpole-swingup/simba-seed0"]),
+    ]),
+    "pendulum-swingup": (820, [
+        ("default", "default", [f"pendulum-swingup/clip-critic-actions-seed{s}" for s in range(3)]),
+        ("simba", "`simba`", ["pendulum-swingup/simba-seed0"]),
+    ]),
+    "acrobot-swingup": (300, [
+        ("default", "default", ["acrobot-swingup/noise-0.95-seed0"]),
+        ("simba", "`simba`", [f"acrobot-swingup/simba-seed{s}" for s in range(3)]),
+    ]),
+    "walker-stand": (970, [
+        ("default", "default", [f"walker-stand/default-seed{s}" for s in range(3)]),
+        ("simba", "`simba`", ["walker-stand/simba-seed0"]),
+    ]),
+    "walker-walk": (960, [
+        ("default", "default", [f"walker-walk/default-seed{s}" for s in range(3)]),
+        ("simba", "`simba`", ["walker-walk/simba-seed0"]),
+    ]),
     "walker-run": (700, [
-        ("default", "default (MLP)", ["walker-run/default-seed0"]),
+        ("default", "default (MLP)", ["walker-run/default-seed0", "walker-run/mlp-seed1", "walker-run/mlp-seed2"]),
         ("simba", "`simba`", [f"walker-run/simba-seed{s}" for s in range(3)]),
     ]),
     "cheetah-run": (800, [
         ("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)]),
         ("simba", "`simba` (seed 0, no logit floor)", ["cheetah-run/simba-seed0"]),
     ]),
-    "hopper-stand": (900, [("default", "default", [f"hopper-stand/eps-penalty-0.01-seed{s}" for s in range(3)])]),
+    "hopper-stand": (900, [
+        ("default", "default", [f"hopper-stand/eps-penalty-0.01-seed{s}" for s in range(3)]),
+        ("simba", "`simba`", ["hopper-stand/simba-seed0"]),
+    ]),
     "hopper-hop": (250, [
         ("mlp", "`mlp` (the default before)", ["hopper-hop/mlp-seed0"] + [f"hopper-hop/eps-penalty-0.01-seed{s}" for s in (1, 2)]),
         ("simba", "`simba` (the default now)", [f"hopper-hop/simba-seed{s}" for s in range(3)]),

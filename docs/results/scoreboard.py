@@ -92,7 +92,7 @@ def row_figure(root, task, dirs):
     at = budget(task)
     curves = [runs.read_rows(str(root / d)) for d in dirs if (root / d / "metrics.csv").exists()]
     if not curves:
-        return "no run", None
+        return None, None
     common = min(int(c[-1]["env_steps"]) for c in curves)
     step = at if common >= at else common
     vals = [float(c[runs.index_at(c, step)]["eval_return_mean"]) for c in curves]
@@ -138,8 +138,8 @@ def main():
           + " | ".join(agents) + " |")
     print("|---|---:|---|---|---|" + "---:|" * len(agents))
     for task, (target, rows) in runs.TASK_ROWS.items():
-        for k, (_net, label, dirs) in enumerate(rows):
-            text, mean = row_figure(root, task, dirs)
+        figures = [(label, *row_figure(root, task, dirs)) for _net, label, dirs in rows]
+        for k, (label, text, mean) in enumerate(f for f in figures if f[1] is not None):
             met = "-" if mean is None else ("**yes**" if mean >= target else "no")
             if k == 0:
                 name = f"{task} ({budget(task) // 1000}k)"

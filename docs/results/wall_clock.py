@@ -51,6 +51,9 @@ def main():
     print("|---|---:|---|---|---|---|---|")
     for task, (target, rows) in ROWS.items():
         for net, label, dirs in rows:
+            dirs = [d for d in dirs if (HERE / d / "metrics.csv").exists()]
+            if not dirs:
+                continue
             one, two = rates.get((task, net, 1)), rates.get((task, net, 2))
             if one is None or two is None:
                 print(f"| {task} | {target} | {label} | not measured | | | |")
