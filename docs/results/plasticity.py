@@ -157,16 +157,14 @@ def main():
         ck = Path(d) / "checkpoint" if (Path(d) / "checkpoint").is_dir() else Path(d)
         p = {k: v for k, v in load(ck / "params.safetensors").items()
              if k.startswith(("actor.", "critic."))}
-        meta = json.loads((ck / "meta.json").read_text())
+        steps = int(json.loads((ck / "meta.json").read_text())["env_steps"])
         replay = load(ck / "replay.safetensors")
-        filled = int(meta["env_steps"]) if "env_steps" in meta else len(replay["obs"])
-        filled = min(filled, len(replay["obs"]))
-        idx = np.random.default_rng(0).integers(0, filled, size=n)
+        # The stored transitions: every step's, or the buffer's capacity once it wrapped.
+        idx = np.random.default_rng(0).integers(0, min(steps, len(replay["obs"])), size=n)
         obs = replay["obs"][idx]
         obs = np.clip((obs - p["actor.in.shift"]) * p["actor.in.scale"],
                       -p["actor.in.limit"], p["actor.in.limit"])
         act = replay["action"][idx]
-        steps = int(meta["env_steps"])
         label = f"{Path(d).resolve().relative_to(Path(d).resolve().parents[2])} ({steps // 1000}k)"
         report(label, p, obs, act)
         if with_fresh:

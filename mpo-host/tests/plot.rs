@@ -287,11 +287,14 @@ fn metric_draws_another_column_and_skips_the_evaluations_without_it() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    // The mean at 20k over 4, 8 and 9 (step 0 left out: no run has a number there).
+    // The mean at 20k over 4, 8 and 9 (step 0 left out: no run has a number there), to
+    // three decimals (a metric's; a return's is one).
     let sd = (((4.0f64 - 7.0).powi(2) + 1.0 + 4.0) / 3.0).sqrt();
     assert_eq!(
         String::from_utf8_lossy(&out.stdout).trim(),
-        format!("runs: mean of 3 runs at 20000 steps: 7.0 +- {sd:.1} (a 4.0, b 8.0, c 9.0)")
+        format!(
+            "runs: mean of 3 runs at 20000 steps: 7.000 +- {sd:.3} (a 4.000, b 8.000, c 9.000)"
+        )
     );
     // The return of the same runs is another picture.
     let ret = draw(&d, "ret.png", &names);

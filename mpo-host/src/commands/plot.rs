@@ -17,7 +17,7 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
         runs.push(read_run_curve(dir, metric)?);
     }
     if args.by_task {
-        return plot_by_task(args, runs);
+        return plot_by_task(args, runs, metric);
     }
     let title = args.title.clone().unwrap_or_else(|| {
         format!(
@@ -33,7 +33,7 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
     let what = task.as_deref().unwrap_or("runs");
     let (mean, line) = args
         .mean
-        .then(|| mean_of_runs(what, &series))
+        .then(|| mean_of_runs(what, &series, metric))
         .transpose()?
         .unzip();
     crate::plot::write_curves(&args.out, &title, &series, mean, metric).map_err(Error::Plot)?;
@@ -44,11 +44,14 @@ pub fn plot(args: &PlotArgs) -> Result<(), Error> {
 
 /// `--mean`: the mean curve over `series` ([`crate::plot::mean_over_runs`]) with its legend
 /// label, and the line to print once the image is written: its last point and each run's
-/// return there (`what` names the runs).
+/// value there (`what` names the runs): a return to one decimal, another `metric` to three
+/// (a loss near 0.01, a weight growth of 1.05).
 fn mean_of_runs(
     what: &str,
     series: &[crate::plot::Series],
+    metric: Option<&str>,
 ) -> Result<(crate::plot::Series, String), Error> {
+    let d = if metric.is_some() { 3 } else { 1 };
     let pts = crate::plot::mean_over_runs(series).ok_or_else(|| {
         Error::Plot(format!(
             "--mean: the {what} runs share no evaluation step (it averages at the steps every run has)"
@@ -60,7 +63,7 @@ fn mean_of_runs(
         .filter_map(|(label, p)| {
             p.iter()
                 .find(|q| q.0 == x)
-                .map(|q| format!("{label} {:.1}", q.1))
+                .map(|q| format!("{label} {:.d$}", q.1))
         })
         .collect();
     let runs = match series.len() {
@@ -68,7 +71,7 @@ fn mean_of_runs(
         n => format!("{n} runs"),
     };
     let line = format!(
-        "{what}: mean of {runs} at {x} steps: {m:.1} +- {sd:.1} ({})",
+        "{what}: mean of {runs} at {x} steps: {m:.d$} +- {sd:.d$} ({})",
         each.join(", ")
     );
     let label = format!("mean of {} (+-1 std over runs)", series.len());
@@ -76,7 +79,7 @@ fn mean_of_runs(
 }
 
 /// `mpo plot --by-task`: the runs grouped by their task into panels, with the `--target` lines.
-fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
+fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>, metric: Option<&str>) -> Result<(), Error> {
     let mut panels: Vec<crate::plot::Panel> = Vec::new();
     for ((label, pts, task), dir) in runs.into_iter().zip(&args.runs) {
         let task = task.ok_or_else(|| {
@@ -93,7 +96,7 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
                 target: None,
                 budget: None,
                 mean: None,
-                metric: args.metric.clone().filter(|m| m != RETURN),
+                metric: metric.map(str::to_string),
             }),
         }
     }
@@ -115,7 +118,7 @@ fn plot_by_task(args: &PlotArgs, runs: Vec<RunCurve>) -> Result<(), Error> {
     let mut lines = Vec::new();
     if args.mean {
         for p in &mut panels {
-            let (mean, line) = mean_of_runs(&p.title, &p.series)?;
+            let (mean, line) = mean_of_runs(&p.title, &p.series, metric)?;
             p.mean = Some(mean);
             lines.push(line);
         }
