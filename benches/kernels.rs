@@ -420,9 +420,59 @@ fn value_rows(rows: &mut Vec<Row>) {
     }
 }
 
+/// The residual critic's LayerNorm (width 128, as every built-in `simba` critic) on 256 rows,
+/// forward and backward, beside the block's first linear layer (128 -> 256) on the same rows:
+/// what normalising a row costs against what the block then does with it.
+fn norm_rows(rows: &mut Vec<Row>) {
+    use mpo_core::layer_norm::LayerNorm;
+    use mpo_core::linear::Linear;
+    const W: usize = 128;
+    const F: usize = 256;
+    let mut rng = Rng::seed_from_u64(7);
+    let mut ln: Box<LayerNorm<W>> = bytemuck::zeroed_box();
+    ln.init();
+    rng.fill_normal(&mut ln.g);
+    let mut l: Box<Linear<W, F>> = bytemuck::zeroed_box();
+    l.init_uniform(&mut rng);
+    let mut x: Box<[[f32; W]; B]> = bytemuck::zeroed_box();
+    let mut xhat: Box<[[f32; W]; B]> = bytemuck::zeroed_box();
+    let mut y: Box<[[f32; W]; B]> = bytemuck::zeroed_box();
+    let mut dx: Box<[[f32; W]; B]> = bytemuck::zeroed_box();
+    let mut h: Box<[[f32; F]; B]> = bytemuck::zeroed_box();
+    let mut rstd = [0f32; B];
+    rng.fill_normal(x.as_flattened_mut());
+    let secs = time(400, || {
+        ln.forward_rows(&*x, &mut *xhat, &mut rstd, &mut *y);
+        black_box(&y[0][0]);
+    });
+    rows.push(Row {
+        name: format!("layer norm {W}, batch {B}: forward"),
+        secs,
+        flops: (B * W * 7) as f64,
+    });
+    let secs = time(400, || {
+        ln.backward_rows(&*xhat, &rstd, &*y, &mut *dx);
+        black_box(&dx[0][0]);
+    });
+    rows.push(Row {
+        name: format!("layer norm {W}, batch {B}: backward"),
+        secs,
+        flops: (B * W * 8) as f64,
+    });
+    let secs = time(100, || {
+        l.forward_relu(&*y, &mut *h);
+        black_box(&h[0][0]);
+    });
+    rows.push(Row {
+        name: format!("layer {W}x{F}, batch {B}: forward with ReLU (beside it)"),
+        secs,
+        flops: 2.0 * (B * W * F) as f64,
+    });
+}
+
 fn main() {
     // `cargo bench --bench kernels -- NAME` runs only the groups whose name contains NAME
-    // (layer, single, actor, critic, value); `cargo bench` itself passes `--bench`, which is ignored.
+    // (layer, single, actor, critic, value, norm); `cargo bench` itself passes `--bench`, which is ignored.
     let filter = std::env::args()
         .skip(1)
         .find(|a| !a.starts_with('-'))
@@ -456,6 +506,9 @@ fn main() {
     }
     if on("value") {
         value_rows(&mut rows);
+    }
+    if on("norm") {
+        norm_rows(&mut rows);
     }
 
     println!("measured single-core peak (8-wide fused multiply-add): {peak:.1} GFLOP/s");

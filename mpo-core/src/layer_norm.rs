@@ -12,15 +12,15 @@
 //! builds, CPUs and thread counts like the rest of the core.
 //!
 //! The residual networks' form ([`LayerNorm::forward_rows`], [`LayerNorm::backward_rows`]) has
-//! no `tanh` and sums each row in eight lanes ([`sum8`], [`dot8`]: lane `l` adds the entries
-//! `i = l mod 8` in ascending order, then the lanes are added pairwise in a fixed tree). That
-//! order is written out in plain `+` and fma, so the compiler keeps it and vectorises it (one
-//! 8-wide register of partial sums), and a device without vector units computes the same
-//! bits one lane at a time.
+//! no `tanh` and sums each row in eight lanes ([`crate::lanes`]: lane `l` adds the entries
+//! `i = l mod 8` in ascending order, then the lanes are added pairwise in a fixed tree): one
+//! 8-wide register of partial sums on the host, and a device without vector units computes
+//! the same bits one lane at a time.
 
 use bytemuck::Zeroable;
 
-use crate::linear::mul_add;
+use crate::lanes::{dot8, normalize_into, sq_dev8, sum8};
+use crate::linear::{mul_add, sqrt};
 use crate::mathf::tanh;
 use crate::params::Params;
 
@@ -73,7 +73,7 @@ impl<const N: usize> LayerNorm<N> {
             let inv_n = 1.0 / N as f32;
             let mean = row.iter().sum::<f32>() * inv_n;
             let var = row.iter().map(|&v| (v - mean) * (v - mean)).sum::<f32>() * inv_n;
-            *r = 1.0 / libm::sqrtf(var + EPS);
+            *r = 1.0 / sqrt(var + EPS);
             for o in 0..N {
                 xh[o] = (row[o] - mean) * *r;
                 row[o] = tanh(mul_add(self.g[o], xh[o], self.b[o]));
@@ -132,67 +132,6 @@ pub fn param_grad_chunks<const N: usize>(
     }
 }
 
-/// Lanes of the fixed-order row sums.
-const LANES: usize = 8;
-
-/// Adds eight lanes pairwise: `((l0 + l1) + (l2 + l3)) + ((l4 + l5) + (l6 + l7))`.
-#[inline(always)]
-fn fold(a: [f32; LANES]) -> f32 {
-    ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
-}
-
-/// `sum_i x[i]` in the fixed eight-lane order (module doc).
-#[inline]
-pub fn sum8(x: &[f32]) -> f32 {
-    let mut acc = [0f32; LANES];
-    let mut chunks = x.chunks_exact(LANES);
-    for c in &mut chunks {
-        for l in 0..LANES {
-            acc[l] += c[l];
-        }
-    }
-    for (l, &v) in chunks.remainder().iter().enumerate() {
-        acc[l] += v;
-    }
-    fold(acc)
-}
-
-/// `sum_i a[i] b[i]` in the fixed eight-lane order, one fma per term.
-#[inline]
-pub fn dot8(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len(), "dot8: lengths differ");
-    let mut acc = [0f32; LANES];
-    let mut ca = a.chunks_exact(LANES);
-    let mut cb = b.chunks_exact(LANES);
-    for (x, y) in (&mut ca).zip(&mut cb) {
-        for l in 0..LANES {
-            acc[l] = mul_add(x[l], y[l], acc[l]);
-        }
-    }
-    for (l, (&x, &y)) in ca.remainder().iter().zip(cb.remainder()).enumerate() {
-        acc[l] = mul_add(x, y, acc[l]);
-    }
-    fold(acc)
-}
-
-/// `sum_i (x[i] - c)^2` in the fixed eight-lane order, one fma per term.
-#[inline]
-fn sq_dev8(x: &[f32], c: f32) -> f32 {
-    let mut acc = [0f32; LANES];
-    let mut chunks = x.chunks_exact(LANES);
-    for ch in &mut chunks {
-        for l in 0..LANES {
-            let d = ch[l] - c;
-            acc[l] = mul_add(d, d, acc[l]);
-        }
-    }
-    for (l, &v) in chunks.remainder().iter().enumerate() {
-        let d = v - c;
-        acc[l] = mul_add(d, d, acc[l]);
-    }
-    fold(acc)
-}
-
 impl<const N: usize> LayerNorm<N> {
     /// One row: `xhat = (x - mean) rstd` with `rstd = 1 / sqrt(var + EPS)`, `y = g xhat + b`;
     /// returns `rstd`. Mean and variance are [`sum8`]-ordered sums times `1 / N`.
@@ -201,11 +140,8 @@ impl<const N: usize> LayerNorm<N> {
         let inv_n = 1.0 / N as f32;
         let mean = sum8(x) * inv_n;
         let var = sq_dev8(x, mean) * inv_n;
-        let r = 1.0 / libm::sqrtf(var + EPS);
-        for o in 0..N {
-            xhat[o] = (x[o] - mean) * r;
-            y[o] = mul_add(self.g[o], xhat[o], self.b[o]);
-        }
+        let r = 1.0 / sqrt(var + EPS);
+        normalize_into(x, mean, r, &self.g, &self.b, xhat, y);
         r
     }
 

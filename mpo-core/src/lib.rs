@@ -58,6 +58,7 @@ pub mod export;
 pub mod gaussian;
 #[cfg(feature = "train")]
 pub mod hypersphere;
+pub mod lanes;
 pub mod layer_norm;
 #[cfg(feature = "train")]
 pub mod learner;

@@ -12,13 +12,13 @@
 //! renormalised over the support), and the loss is `-sum_k t_k ln p_k`, whose gradient at the
 //! logits is `p - t`. `y` outside the support is clamped into it.
 //!
-//! The softmax uses [`crate::mathf::exp`] and eight-lane sums (`crate::layer_norm::sum8`), so it
+//! The softmax uses [`crate::mathf::exp`] and eight-lane sums (`crate::lanes::sum8`), so it
 //! vectorises and has the same bits on every build; the projection's `erf` and the loss's one
 //! logarithm per row are `libm`'s (portable software; they run once per batch row, not per
 //! sample).
 
 use crate::config::MpoConfig;
-use crate::layer_norm::{dot8, sum8};
+use crate::lanes::{dot8, max8, sum8};
 use crate::linear::mul_add;
 use crate::mathf::exp;
 
@@ -71,12 +71,9 @@ impl Support {
 /// bits of a long run (measured in docs/core.md), so it is a setting
 /// (`MpoConfig::logit_floor`), off for runs made before it.
 pub fn softmax<const K: usize>(logits: &[f32; K], p: &mut [f32; K], floor: f32) -> f32 {
-    let mut m = logits[0];
-    for &l in &logits[1..] {
-        if l > m {
-            m = l;
-        }
-    }
+    // The largest logit in eight lanes; a zero maximum's sign, the one thing the order could
+    // change, changes no output (every `logits_k - m` and `m + ln s` is the same number).
+    let m = max8(logits);
     // No finite difference lies below -inf: with the floor off every atom takes `exp`.
     let cut = if floor > 0.0 {
         -floor
@@ -174,5 +171,66 @@ pub fn loss<const K: usize>(
             d_out[n][k] = (probs[n][k] - t[k]) * inv_b;
         }
         loss[n] = ce;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `softmax` with the running maximum in index order (the form before [`max8`]).
+    fn softmax_in_order<const K: usize>(logits: &[f32; K], p: &mut [f32; K], floor: f32) -> f32 {
+        let mut m = logits[0];
+        for &l in &logits[1..] {
+            if l > m {
+                m = l;
+            }
+        }
+        let cut = if floor > 0.0 {
+            -floor
+        } else {
+            f32::NEG_INFINITY
+        };
+        for k in 0..K {
+            let d = logits[k] - m;
+            p[k] = if d < cut { 0.0 } else { exp(d) };
+        }
+        let s = sum8(p);
+        for x in p.iter_mut() {
+            *x /= s;
+        }
+        m + libm::logf(s)
+    }
+
+    #[test]
+    fn softmax_matches_the_in_order_maximum_bit_for_bit_with_zero_maxima_of_either_sign() {
+        const K: usize = 21;
+        let mut checked = 0;
+        for case in 0..200u32 {
+            // Logits at or below zero, the largest a zero of one sign or both, anywhere.
+            let mut logits: [f32; K] =
+                core::array::from_fn(|k| -(((case * 3 + k as u32 * 13) % 7) as f32) * 0.75);
+            for k in 0..K {
+                if logits[k] == 0.0 && (case + k as u32) % 2 == 1 {
+                    logits[k] = -0.0;
+                }
+            }
+            let zeros = logits.iter().filter(|l| **l == 0.0).count();
+            let negative_zero = logits.iter().any(|l| *l == 0.0 && l.is_sign_negative());
+            for floor in [0.0, 10.0] {
+                let (mut p, mut q) = ([0f32; K], [0f32; K]);
+                let a = softmax(&logits, &mut p, floor);
+                let b = softmax_in_order(&logits, &mut q, floor);
+                assert_eq!(a.to_bits(), b.to_bits(), "log-sum-exp, case {case}");
+                for k in 0..K {
+                    assert_eq!(p[k].to_bits(), q[k].to_bits(), "p[{k}], case {case}");
+                }
+            }
+            checked += usize::from(zeros > 1 && negative_zero);
+        }
+        assert!(
+            checked > 20,
+            "too few cases with tied zero maxima of both signs ({checked})"
+        );
     }
 }

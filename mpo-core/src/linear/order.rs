@@ -72,8 +72,14 @@ pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
 }
 
 /// The square root, correctly rounded (so the same bits everywhere): on a Cortex-M with an FPU
-/// the `vsqrt.f32` instruction, elsewhere `libm::sqrtf` (which uses the instruction on x86).
-/// For the hot loops (Adam: one per parameter per update).
+/// the `vsqrt.f32` instruction, on x86-64 builds with AVX (the host target) the VEX-encoded
+/// `vsqrtss`, elsewhere `libm::sqrtf`. For the hot loops (Adam: one per parameter per update;
+/// each layer norm row).
+///
+/// Not `libm::sqrtf` on the host: on x86 it is an inline-assembly `sqrtss`, the legacy SSE
+/// encoding, which on the AVX-512 Xeons this project is measured on waits out the 512-bit
+/// kernels' register state: a layer norm of 256 rows of 128 took 62 us, more than half the
+/// 110 us of the 128 x 256 layer after it (`cargo bench --bench kernels -- norm`, docs/core.md).
 #[inline(always)]
 pub fn sqrt(x: f32) -> f32 {
     #[cfg(all(
@@ -84,10 +90,24 @@ pub fn sqrt(x: f32) -> f32 {
     {
         core::f32::math::sqrt(x)
     }
-    #[cfg(not(all(
-        target_arch = "arm",
-        target_feature = "mclass",
-        target_feature = "fpregs"
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+    {
+        use core::arch::x86_64::{_mm_cvtss_f32, _mm_set_ss, _mm_sqrt_ss};
+        // SAFETY: the `avx` target feature is enabled for the whole build (checked by the cfg
+        // above), so every CPU this binary may run on has the instruction; the intrinsics only
+        // touch registers.
+        #[allow(unsafe_code)]
+        unsafe {
+            _mm_cvtss_f32(_mm_sqrt_ss(_mm_set_ss(x)))
+        }
+    }
+    #[cfg(not(any(
+        all(target_arch = "x86_64", target_feature = "avx"),
+        all(
+            target_arch = "arm",
+            target_feature = "mclass",
+            target_feature = "fpregs"
+        )
     )))]
     {
         libm::sqrtf(x)
