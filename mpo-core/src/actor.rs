@@ -330,6 +330,10 @@ impl<const OBS: usize, const ACT: usize, const TRI: usize, const H1: usize, cons
     fn backward_macs() -> usize {
         2 * Actor::<OBS, ACT, TRI, H1, H2>::forward_macs() - OBS * H1
     }
+    fn relu_layers<const B: usize>(tape: &Self::Tape<B>, visit: &mut dyn FnMut(&[f32], usize)) {
+        visit(tape.h1.as_flattened(), H1);
+        visit(tape.h2.as_flattened(), H2);
+    }
 }
 
 /// Upper bound of the blocks [`Actor::grad_parts`] and the critic's equivalent return.

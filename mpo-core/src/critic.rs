@@ -556,4 +556,14 @@ impl<const OBS: usize, const ACT: usize, const H1: usize, const H2: usize, const
     fn backward_macs() -> usize {
         2 * Critic::<OBS, ACT, H1, H2, K>::forward_macs() - (OBS + ACT) * H1
     }
+    fn relu_layers<const B: usize>(
+        tape: &Self::Tape<B>,
+        cfg: &MpoConfig,
+        visit: &mut dyn FnMut(&[f32], usize),
+    ) {
+        if !cfg.critic_layer_norm {
+            visit(tape.h1.as_flattened(), H1);
+        }
+        visit(tape.h2.as_flattened(), H2);
+    }
 }

@@ -128,6 +128,10 @@ pub trait PolicyTrain<const OBS: usize, const ACT: usize, const TRI: usize>:
     /// Multiply-adds of one state's backward pass (weight gradients, and input gradients of
     /// every layer but the first).
     fn backward_macs() -> usize;
+    /// Hands `visit` each ReLU layer's activations in `tape` after a `forward` (rows of
+    /// `width` units, the layer's rows one after another), first layer first: what the host
+    /// measures dormant units on (`mpo_host::plasticity`).
+    fn relu_layers<const B: usize>(tape: &Self::Tape<B>, visit: &mut dyn FnMut(&[f32], usize));
 }
 
 #[cfg(feature = "train")]
@@ -225,6 +229,13 @@ pub trait ValueNet<const OBS: usize, const ACT: usize>:
     /// Multiply-adds of one pair's backward pass (weight gradients, and input gradients of
     /// every layer but the first).
     fn backward_macs() -> usize;
+    /// As [`PolicyTrain::relu_layers`], after `values` with `cfg` (a layer norm and `tanh`
+    /// first layer, `cfg.critic_layer_norm`, is not a ReLU layer and is not visited).
+    fn relu_layers<const B: usize>(
+        tape: &Self::Tape<B>,
+        cfg: &MpoConfig,
+        visit: &mut dyn FnMut(&[f32], usize),
+    );
 }
 
 #[cfg(feature = "train")]

@@ -14,6 +14,7 @@ pub mod collection;
 pub mod commands;
 pub mod contact_sheet;
 pub mod device;
+pub mod dormant;
 pub mod durable;
 pub mod eval;
 pub mod fleet;

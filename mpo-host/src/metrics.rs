@@ -88,10 +88,17 @@ pub struct MetricsRow {
     /// made before it was logged (an empty cell).
     #[serde(default)]
     pub weight_growth: Option<[f64; 2]>,
+    /// The online policy's and critic's dormant ReLU units in percent, `[actor, critic]`
+    /// ([`crate::dormant`]); `None` before it was logged or while the buffer was empty.
+    #[serde(default)]
+    pub dormant: Option<[f64; 2]>,
 }
 
 /// The columns of `metrics.csv` after the learner statistics: [`MetricsRow::weight_growth`].
 const GROWTH_COLUMNS: [&str; 2] = ["actor_weight_growth", "critic_weight_growth"];
+
+/// The columns after those: [`MetricsRow::dormant`].
+const DORMANT_COLUMNS: [&str; 2] = ["actor_dormant", "critic_dormant"];
 
 /// The columns of `metrics.csv` before the learner statistics.
 const COLUMNS: [&str; 8] = [
@@ -113,7 +120,8 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
         COLUMNS
             .iter()
             .chain(STAT_NAMES.iter())
-            .chain(GROWTH_COLUMNS.iter()),
+            .chain(GROWTH_COLUMNS.iter())
+            .chain(DORMANT_COLUMNS.iter()),
     )?;
     let mut jsonl = String::new();
     for r in rows {
@@ -133,11 +141,9 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
                 .iter()
                 .map(|v| v.map(|x| x.to_string()).unwrap_or_default()),
         );
-        record.extend((0..GROWTH_COLUMNS.len()).map(|i| {
-            r.weight_growth
-                .map(|g| g[i].to_string())
-                .unwrap_or_default()
-        }));
+        for pair in [r.weight_growth, r.dormant] {
+            record.extend((0..2).map(|i| pair.map(|g| g[i].to_string()).unwrap_or_default()));
+        }
         csv.write_record(&record)?;
         let mut obj = serde_json::Map::new();
         obj.insert("env_steps".into(), r.env_steps.into());
@@ -151,8 +157,13 @@ pub fn write_all(dir: &Path, rows: &[MetricsRow]) -> std::io::Result<()> {
         for (n, v) in STAT_NAMES.iter().zip(&r.stats) {
             obj.insert((*n).into(), (*v).into());
         }
-        for (i, n) in GROWTH_COLUMNS.iter().enumerate() {
-            obj.insert((*n).into(), r.weight_growth.map(|g| g[i]).into());
+        for (names, pair) in [
+            (GROWTH_COLUMNS, r.weight_growth),
+            (DORMANT_COLUMNS, r.dormant),
+        ] {
+            for (i, n) in names.iter().enumerate() {
+                obj.insert((*n).into(), pair.map(|g| g[i]).into());
+            }
         }
         jsonl.push_str(&serde_json::Value::Object(obj).to_string());
         jsonl.push('\n');

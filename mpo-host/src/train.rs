@@ -349,6 +349,7 @@ impl<'r> Session<'r> {
             updates_per_s: (t.updates() - self.mark.2) as f64 / dt,
             stats,
             weight_growth: Some(t.weight_growth()),
+            dormant: t.dormant(),
         });
         self.last_eval = (mean, std);
         if let Some(strips) = &self.req.render {

@@ -32,7 +32,7 @@ use crate::sizes::Sizes;
 use crate::time_split::{Laps, TimeSplit};
 use crate::training::{StepError, TrainError};
 use crate::training::{Training, TrainingInit};
-use crate::weight_growth;
+use crate::{dormant, weight_growth};
 
 pub use crate::collection::agent_schedule;
 use crate::collection::{STREAM_SALT, env_step};
@@ -779,6 +779,10 @@ impl<
             weight_growth::growth(&l.actor, &checkpoint::actor_layout(&s)),
             weight_growth::growth(&l.critic, &checkpoint::critic_layout(&s)),
         ]
+    }
+    fn dormant(&self) -> Option<[f64; 2]> {
+        let (l, replay) = (&self.agent.learner, &self.agent.replay);
+        dormant::measure(&l.live.actor, &l.live.critic, &l.cfg, replay)
     }
     fn attach_device(&mut self, dev: Device, settings: &Settings) -> Result<(), TrainError> {
         Trainer::attach_device(self, dev, settings)

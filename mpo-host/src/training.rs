@@ -71,6 +71,9 @@ pub trait Training {
     /// How far the online actor's and critic's hidden weights have grown since initialisation
     /// ([`crate::weight_growth`]): `[actor, critic]`, about 1 for fresh networks.
     fn weight_growth(&self) -> [f64; 2];
+    /// The online actor's and critic's dormant ReLU units in percent ([`crate::dormant`]):
+    /// `[actor, critic]`, `None` while the replay buffer is empty.
+    fn dormant(&self) -> Option<[f64; 2]>;
     /// Learns on a device program from now on (a fresh run).
     fn attach_device(&mut self, dev: Device, settings: &Settings) -> Result<(), TrainError>;
     /// The device link's counters, when learning on one.

@@ -76,6 +76,20 @@ fn column(run: &Path, name: &str) -> Vec<f64> {
         .collect()
 }
 
+/// A column of a run's `metrics.csv` with its empty cells as `None`.
+fn cells(run: &Path, name: &str) -> Vec<Option<f64>> {
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let i = header.iter().position(|h| *h == name).expect(name);
+    lines
+        .map(|l| {
+            let c = l.split(',').nth(i).unwrap();
+            (!c.is_empty()).then(|| c.parse().unwrap())
+        })
+        .collect()
+}
+
 #[test]
 fn weights_on_the_sphere_are_a_runs_setting_kept_by_its_checkpoint() {
     let d = scratch("residual-sphere");
@@ -105,6 +119,21 @@ fn weights_on_the_sphere_are_a_runs_setting_kept_by_its_checkpoint() {
             );
         }
         assert_eq!(column(&d.join("half"), net), sphere);
+    }
+    // The dormant units (`mpo_host::dormant`): nothing to measure on at the evaluation before
+    // the first step, a share of the units at every later one, the same after a resume.
+    assert_eq!(column(&d.join("full"), "env_steps")[0], 0.0);
+    for net in ["actor_dormant", "critic_dormant"] {
+        let full = cells(&d.join("full"), net);
+        assert_eq!(full[0], None, "{net}: {full:?}");
+        assert!(full.len() >= 2, "{full:?}");
+        assert!(
+            full[1..]
+                .iter()
+                .all(|v| v.is_some_and(|x| (0.0..=100.0).contains(&x))),
+            "{net}: {full:?}"
+        );
+        assert_eq!(cells(&d.join("half"), net), full);
     }
     // An MLP row refuses it, naming the setting.
     let out = mpo(&[

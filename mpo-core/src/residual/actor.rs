@@ -293,4 +293,9 @@ impl<
     fn backward_macs() -> usize {
         2 * Self::forward_macs() - OBS * W
     }
+    fn relu_layers<const B: usize>(tape: &Self::Tape<B>, visit: &mut dyn FnMut(&[f32], usize)) {
+        for h in &tape.h {
+            visit(h.as_flattened(), F);
+        }
+    }
 }

@@ -292,4 +292,13 @@ impl<
     fn backward_macs() -> usize {
         2 * Self::forward_macs() - (OBS + ACT) * W
     }
+    fn relu_layers<const B: usize>(
+        tape: &Self::Tape<B>,
+        _cfg: &MpoConfig,
+        visit: &mut dyn FnMut(&[f32], usize),
+    ) {
+        for h in &tape.trunk.h {
+            visit(h.as_flattened(), F);
+        }
+    }
 }
