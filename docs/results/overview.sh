@@ -19,7 +19,8 @@ for s in 0 1 2; do link cheetah-run $s default-seed$s; done
 for s in 0 1 2; do link hopper-stand $s eps-penalty-0.01-seed$s; done
 # hopper-hop: the `simba` row, its default since 2026-12-05 (the MLP seeds: eps-penalty-0.01-seed*).
 for s in 0 1 2; do link hopper-hop $s simba-seed$s; done
-link acrobot-swingup 0 noise-0.95-seed0
+# acrobot-swingup: the `simba` row, its default since 2026-12-06 (the MLP seed: noise-0.95-seed0).
+for s in 0 1 2; do link acrobot-swingup $s simba-seed$s; done
 set --
 for t in cartpole-balance cartpole-swingup pendulum-swingup walker-stand walker-walk walker-run \
     cheetah-run hopper-stand hopper-hop acrobot-swingup; do
@@ -32,5 +33,5 @@ LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}:$PWD/.deps/mujoco "$mpo" plot --by-task \
     --target cheetah-run=600 --target hopper-stand=700 --target hopper-hop=100 \
     --budget cartpole-swingup=200000 --budget walker-walk=500000 --budget walker-run=1000000 \
     --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget hopper-hop=500000 \
-    --budget acrobot-swingup=1000000 \
+    --budget acrobot-swingup=500000 \
     --out "$r/overview.png" "$@"

@@ -24,8 +24,8 @@ TASK_ROWS = {
         ("simba", "`simba`", ["pendulum-swingup/simba-seed0"]),
     ]),
     "acrobot-swingup": (300, [
-        ("default", "default", ["acrobot-swingup/noise-0.95-seed0"]),
-        ("simba", "`simba`", [f"acrobot-swingup/simba-seed{s}" for s in range(3)]),
+        ("mlp", "`mlp` (the default before)", ["acrobot-swingup/noise-0.95-seed0"]),
+        ("simba", "`simba` (the default now)", [f"acrobot-swingup/simba-seed{s}" for s in range(3)]),
     ]),
     "walker-stand": (970, [
         ("default", "default", [f"walker-stand/default-seed{s}" for s in range(3)]),
@@ -56,7 +56,9 @@ TASK_ROWS = {
 }
 
 # The row each task trains by default (`mpo train --task TASK`), by its `net` above.
-DEFAULT_NET = {task: "simba" if task == "hopper-hop" else "default" for task in TASK_ROWS}
+DEFAULT_NET = {
+    task: "simba" if task in ("hopper-hop", "acrobot-swingup") else "default" for task in TASK_ROWS
+}
 
 
 def read_rows(run):
