@@ -2,29 +2,12 @@
 //! `actor_dormant` and `critic_dormant`) on real trainers: units killed by hand are counted,
 //! in the MLPs and in the residual networks, and measuring takes nothing from the run's bits.
 
-use mpo_host::commands::defaults;
-use mpo_host::spec::Spec;
-use mpo_host::table;
-use mpo_host::table::CartpoleTinySimba;
-use mpo_host::trainer::{MlpTrainer, Trainer};
-use mpo_host::training::Training;
+mod common;
 
-/// The tiny cartpole row's trainer type.
-type Tiny = MlpTrainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
-/// The tiny residual row's (`tiny-simba`: residual networks, a categorical critic).
-type TinySimba = Trainer<
-    5,
-    1,
-    1,
-    <CartpoleTinySimba as Spec>::Policy,
-    <CartpoleTinySimba as Spec>::Critic,
-    32,
-    2,
-    4,
-    10,
-    10,
-    50_000,
->;
+use common::{Tiny, TinySimba};
+use mpo_host::commands::defaults;
+use mpo_host::table;
+use mpo_host::training::Training;
 
 /// A unit that never fires whatever its input: no incoming weight, a negative bias.
 fn kill(w: &mut [[f32; 32]], b: &mut [f32; 32], unit: usize) {

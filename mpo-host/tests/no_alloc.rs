@@ -4,33 +4,15 @@
 //! periodic resets) (a fleet plant's step path: `no_alloc_plant.rs`). The counter is
 //! global: this binary holds this one test (`counting`'s header says why).
 
+mod common;
 mod counting;
 
 use std::sync::atomic::Ordering;
 
+use common::{Tiny, TinySimba};
 use counting::{ALLOCS, serial};
 use mpo_host::commands::defaults;
-use mpo_host::spec::Spec;
 use mpo_host::table;
-use mpo_host::table::CartpoleTinySimba;
-use mpo_host::trainer::{MlpTrainer, Trainer};
-
-/// The tiny cartpole row's trainer type.
-type Tiny = MlpTrainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
-/// The tiny residual row's (`tiny-simba`: residual networks, a categorical critic).
-type TinySimba = Trainer<
-    5,
-    1,
-    1,
-    <CartpoleTinySimba as Spec>::Policy,
-    <CartpoleTinySimba as Spec>::Critic,
-    32,
-    2,
-    4,
-    10,
-    10,
-    50_000,
->;
 
 /// Allocations (counted globally) while `f` runs.
 fn allocations_in(f: impl FnOnce()) -> u64 {

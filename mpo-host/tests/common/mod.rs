@@ -4,6 +4,27 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use mpo_host::spec::Spec;
+use mpo_host::table::CartpoleTinySimba;
+use mpo_host::trainer::{MlpTrainer, Trainer};
+
+/// The tiny cartpole row's trainer type (`cartpole-balance --net tiny`).
+pub type Tiny = MlpTrainer<5, 1, 1, 32, 32, 32, 32, 32, 2, 4, 10, 10, 50_000>;
+/// The tiny residual row's (`tiny-simba`: residual networks, a categorical critic).
+pub type TinySimba = Trainer<
+    5,
+    1,
+    1,
+    <CartpoleTinySimba as Spec>::Policy,
+    <CartpoleTinySimba as Spec>::Critic,
+    32,
+    2,
+    4,
+    10,
+    10,
+    50_000,
+>;
+
 /// A fresh, empty directory under the target directory (kept for inspection after a failure).
 pub fn scratch(name: &str) -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("mpo-host-{name}"));
