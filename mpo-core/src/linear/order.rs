@@ -77,9 +77,11 @@ pub fn mul_add(a: f32, b: f32, c: f32) -> f32 {
 /// each layer norm row).
 ///
 /// Not `libm::sqrtf` on the host: on x86 it is an inline-assembly `sqrtss`, the legacy SSE
-/// encoding, which on the AVX-512 Xeons this project is measured on waits out the 512-bit
-/// kernels' register state: a layer norm of 256 rows of 128 took 62 us, more than half the
-/// 110 us of the 128 x 256 layer after it (`cargo bench --bench kernels -- norm`, docs/core.md).
+/// encoding, which is slow among the 256- and 512-bit kernels on the AVX-512 Xeons this
+/// project is measured on (the likely cause: an SSE/AVX transition on the vector registers'
+/// upper state): a layer norm of 256 rows of 128 took 62 us with it, 33 us with `vsqrtss`,
+/// beside 110 us for the 128 x 256 layer after it (`cargo bench --bench kernels -- norm`,
+/// docs/core.md).
 #[inline(always)]
 pub fn sqrt(x: f32) -> f32 {
     #[cfg(all(
