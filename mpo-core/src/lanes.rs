@@ -255,16 +255,10 @@ mod tests {
         ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
     }
 
+    /// `n` values of mixed sign and scale: uniform in `[-3.5, 3.5)`.
     fn data(n: usize, seed: u32) -> Vec<f32> {
-        let mut s = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
-        (0..n)
-            .map(|_| {
-                s ^= s << 13;
-                s ^= s >> 17;
-                s ^= s << 5;
-                (s as f32 / u32::MAX as f32 - 0.5) * 7.0
-            })
-            .collect()
+        let mut rng = crate::rng::Rng::seed_from_u64(u64::from(seed));
+        (0..n).map(|_| rng.uniform_range(-3.5, 3.5)).collect()
     }
 
     #[test]

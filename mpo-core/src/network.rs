@@ -130,7 +130,7 @@ pub trait PolicyTrain<const OBS: usize, const ACT: usize, const TRI: usize>:
     fn backward_macs() -> usize;
     /// Hands `visit` each ReLU layer's activations in `tape` after a `forward` (rows of
     /// `width` units, the layer's rows one after another), first layer first: what the host
-    /// measures dormant units on (`mpo_host::plasticity`).
+    /// measures dormant units on (`mpo_host::dormant`).
     fn relu_layers<const B: usize>(tape: &Self::Tape<B>, visit: &mut dyn FnMut(&[f32], usize));
 }
 

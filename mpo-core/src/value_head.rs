@@ -73,7 +73,11 @@ impl Support {
 pub fn softmax<const K: usize>(logits: &[f32; K], p: &mut [f32; K], floor: f32) -> f32 {
     // The largest logit in eight lanes; a zero maximum's sign, the one thing the order could
     // change, changes no output (every `logits_k - m` and `m + ln s` is the same number).
-    let m = max8(logits);
+    softmax_around(logits, max8(logits), p, floor)
+}
+
+/// [`softmax`] around the given largest logit `m`.
+fn softmax_around<const K: usize>(logits: &[f32; K], m: f32, p: &mut [f32; K], floor: f32) -> f32 {
     // No finite difference lies below -inf: with the floor off every atom takes `exp`.
     let cut = if floor > 0.0 {
         -floor
@@ -186,20 +190,7 @@ mod tests {
                 m = l;
             }
         }
-        let cut = if floor > 0.0 {
-            -floor
-        } else {
-            f32::NEG_INFINITY
-        };
-        for k in 0..K {
-            let d = logits[k] - m;
-            p[k] = if d < cut { 0.0 } else { exp(d) };
-        }
-        let s = sum8(p);
-        for x in p.iter_mut() {
-            *x /= s;
-        }
-        m + libm::logf(s)
+        softmax_around(logits, m, p, floor)
     }
 
     #[test]

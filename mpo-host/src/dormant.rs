@@ -51,6 +51,16 @@ impl UnitActivity {
         }
     }
 
+    /// A visitor for `relu_layers` that adds the first `n` rows of each layer it is handed,
+    /// the layers numbered in the order they come.
+    fn first_rows(&mut self, n: usize) -> impl FnMut(&[f32], usize) + '_ {
+        let mut layer = 0;
+        move |h, width| {
+            self.add(layer, &h[..n * width], width);
+            layer += 1;
+        }
+    }
+
     /// The dormant units' share of all units, in percent (module doc); 0 with no units.
     pub fn dormant_percent(&self) -> f64 {
         let (mut dormant, mut units) = (0usize, 0usize);
@@ -114,17 +124,9 @@ pub fn measure<
         }
         actor.input().apply_rows(&mut obs[..n]);
         actor.forward(&obs, &mut actor_tape, &mut mean, &mut chol);
-        let mut layer = 0;
-        P::relu_layers(&actor_tape, &mut |h, w| {
-            a.add(layer, &h[..n * w], w);
-            layer += 1;
-        });
+        P::relu_layers(&actor_tape, &mut a.first_rows(n));
         critic.values(&obs, &act, &mut critic_tape, &mut q, cfg);
-        let mut layer = 0;
-        Q::relu_layers(&critic_tape, cfg, &mut |h, w| {
-            c.add(layer, &h[..n * w], w);
-            layer += 1;
-        });
+        Q::relu_layers(&critic_tape, cfg, &mut c.first_rows(n));
     }
     Some([a.dormant_percent(), c.dormant_percent()])
 }
