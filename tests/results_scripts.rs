@@ -164,3 +164,65 @@ fn the_frontier_plans_each_run_once_and_starts_with_what_is_missing() {
         "{kept}"
     );
 }
+
+#[test]
+fn compare_counts_the_evaluations_a_row_leads_and_its_window_means() {
+    // acrobot-swingup's three `simba` seeds against its MLP seed (the kept metrics.csv
+    // files): the figures docs/experiments.md quotes for its default change.
+    let out = run(
+        "docs/results/compare.py",
+        &[
+            "--against",
+            "acrobot-swingup/noise-0.95-seed0",
+            "--window",
+            "300000",
+            "400000",
+            "acrobot-swingup/simba-seed0",
+            "acrobot-swingup/simba-seed1",
+            "acrobot-swingup/simba-seed2",
+        ],
+        &[],
+    );
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 5, "{out}");
+    for (line, above) in lines.iter().zip(["19 of 20", "19 of 20", "17 of 20"]) {
+        assert!(line.contains(&format!("at {above} shared")), "{line}");
+    }
+    assert!(lines[0].contains("300k-400k 112.1") && lines[0].contains("15 below 1"));
+    assert!(lines[3].contains("300k-400k 44.5"), "{}", lines[3]);
+    assert!(
+        lines[4].contains("at 19 of 20") && lines[4].contains("400k 159.0"),
+        "{}",
+        lines[4]
+    );
+}
+
+#[test]
+fn the_scripts_know_which_tasks_train_simba_by_default_as_the_table_does() {
+    // docs/results/runs.py's SIMBA_DEFAULT (read by scripts/frontier and scripts/bench-rows)
+    // against the built-in rows: exactly those tasks have an `mlp` row, and their `default`
+    // row is the `simba` row's networks.
+    let listed = Command::new("python3")
+        .args(["-c", "import runs; print(' '.join(runs.SIMBA_DEFAULT))"])
+        .current_dir(root().join("docs/results"))
+        .output()
+        .expect("python3 runs");
+    let listed = String::from_utf8(listed.stdout).unwrap();
+    let mut listed: Vec<&str> = listed.split_whitespace().collect();
+    listed.sort();
+    let mut table: Vec<&str> = mpo_host::table::rows()
+        .iter()
+        .filter(|r| r.net == "mlp")
+        .map(|r| r.task.as_str())
+        .collect();
+    table.sort();
+    assert_eq!(listed, table);
+    for task in &table {
+        let d = mpo_host::table::row(task, "default").unwrap();
+        let simba = mpo_host::table::row(task, "simba").unwrap();
+        assert_eq!(
+            d.sizes, simba.sizes,
+            "{task}'s default is not its simba row"
+        );
+    }
+}
