@@ -19,7 +19,9 @@
 
 use bytemuck::Zeroable;
 
-use crate::lanes::{dot8, normalize_into, sq_dev8, sum8};
+#[cfg(feature = "train")]
+use crate::lanes::dot8;
+use crate::lanes::{normalize_into, sq_dev8, sum8};
 use crate::linear::{mul_add, sqrt};
 use crate::mathf::tanh;
 use crate::params::Params;
