@@ -96,6 +96,7 @@ fn the_wall_clock_table_reads_every_row_it_has_rates_for() {
     let md = run(
         "docs/results/wall_clock.py",
         &[
+            "docs/results/rates-all-rows.json",
             "docs/results/rates.json",
             "docs/results/rates-hopper-hop-ablation.json",
             "docs/results/rates-simba-rows.json",
