@@ -10,7 +10,6 @@ trap 'rm -rf "$tmp"' EXIT
 # link TASK SEED DIR: the run DIR as the curve "seedSEED" in TASK's panel
 link() { mkdir -p "$tmp/$1"; ln -s "$PWD/$r/$1/$3" "$tmp/$1/seed$2"; }
 for s in 0 1 2 3 4; do link cartpole-balance $s clip-dual-1e-3-seed$s; done
-for s in 0 1 2; do link cartpole-swingup $s default-seed$s; done
 for s in 0 1 2; do link pendulum-swingup $s clip-critic-actions-seed$s; done
 for s in 0 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
@@ -21,6 +20,8 @@ for s in 0 1 2; do link hopper-stand $s eps-penalty-0.01-seed$s; done
 for s in 0 1 2; do link hopper-hop $s simba-seed$s; done
 # acrobot-swingup: the `simba` row, its default since 2026-12-06 (the MLP seed: noise-0.95-seed0).
 for s in 0 1 2; do link acrobot-swingup $s simba-seed$s; done
+# cartpole-swingup: the `simba` row, its default since 2026-12-06 (the MLP seeds: default-seed*).
+for s in 0 1 2; do link cartpole-swingup $s simba-seed$s; done
 set --
 for t in cartpole-balance cartpole-swingup pendulum-swingup walker-stand walker-walk walker-run \
     cheetah-run hopper-stand hopper-hop acrobot-swingup; do
@@ -31,7 +32,7 @@ LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}:$PWD/.deps/mujoco "$mpo" plot --by-task \
     --target cartpole-balance=900 --target cartpole-swingup=800 --target pendulum-swingup=750 \
     --target walker-stand=950 --target walker-walk=900 --target walker-run=500 \
     --target cheetah-run=600 --target hopper-stand=700 --target hopper-hop=100 \
-    --budget cartpole-swingup=200000 --budget walker-walk=500000 --budget walker-run=1000000 \
+    --budget cartpole-swingup=500000 --budget walker-walk=500000 --budget walker-run=1000000 \
     --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget hopper-hop=500000 \
     --budget acrobot-swingup=500000 \
     --out "$r/overview.png" "$@"

@@ -16,8 +16,8 @@ TASK_ROWS = {
         ("simba", "`simba`", [f"cartpole-balance/simba-seed{s}" for s in range(3)]),
     ]),
     "cartpole-swingup": (870, [
-        ("default", "default", [f"cartpole-swingup/default-seed{s}" for s in range(3)]),
-        ("simba", "`simba`", ["cartpole-swingup/simba-seed0"]),
+        ("mlp", "`mlp` (the default before)", [f"cartpole-swingup/default-seed{s}" for s in range(3)]),
+        ("simba", "`simba` (the default now)", [f"cartpole-swingup/simba-seed{s}" for s in range(3)]),
     ]),
     "pendulum-swingup": (820, [
         ("default", "default", [f"pendulum-swingup/clip-critic-actions-seed{s}" for s in range(3)]),
@@ -58,7 +58,7 @@ TASK_ROWS = {
 # Tasks whose default row (`mpo train --task TASK`) is the `simba` row since this issue; their
 # MLP row, the default before, is `--net mlp` (mpo-host/src/table.rs; tests/results_scripts.rs
 # checks the two agree). scripts/frontier and scripts/bench-rows read it from here.
-SIMBA_DEFAULT = ("hopper-hop", "acrobot-swingup")
+SIMBA_DEFAULT = ("hopper-hop", "acrobot-swingup", "cartpole-swingup")
 
 # The row each task trains by default, by its `net` above.
 DEFAULT_NET = {task: "simba" if task in SIMBA_DEFAULT else "default" for task in TASK_ROWS}
