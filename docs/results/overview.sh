@@ -15,7 +15,9 @@ for s in 0 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
 link walker-run 0 default-seed0
 for s in 0 1 2; do link cheetah-run $s default-seed$s; done
-for s in 0 1 2; do link hopper-stand $s eps-penalty-0.01-seed$s; done
+# hopper-stand: the `simba` row, its default since 2026-12-06 (one seed; the MLP seeds:
+# eps-penalty-0.01-seed*).
+link hopper-stand 0 simba-seed0
 # hopper-hop: the `simba` row, its default since 2026-12-05 (the MLP seeds: eps-penalty-0.01-seed*).
 for s in 0 1 2; do link hopper-hop $s simba-seed$s; done
 # acrobot-swingup: the `simba` row, its default since 2026-12-06 (the MLP seed: noise-0.95-seed0).
