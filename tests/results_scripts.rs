@@ -111,6 +111,37 @@ fn the_wall_clock_table_reads_every_row_it_has_rates_for() {
 }
 
 #[test]
+fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons() {
+    let md = run(
+        "docs/results/wall_clock.py",
+        &["--hours", "0.5,1", "docs/results/rates-all-rows.json"],
+        &[],
+    );
+    let rows = table_rows(&md);
+    let tasks: Vec<&str> = rows
+        .iter()
+        .map(|r| r[0].as_str())
+        .filter(|t| !t.is_empty())
+        .collect();
+    assert_eq!(tasks.len(), 10, "one first line per task:\n{md}");
+    // hopper-hop's `simba` seeds after one hour of one thread: 266.3, 249.5, 186.7, mean
+    // 234.2, as per_hour.py reads them (docs/experiments.md, "Wall clock"), the best row there.
+    let start = rows.iter().position(|r| r[0] == "hopper-hop").unwrap();
+    let hop = rows[start..]
+        .iter()
+        .find(|r| r[1].starts_with("`simba` (the default now)"))
+        .expect("hopper-hop's simba row");
+    assert_eq!(hop[3], "**234.2**", "{hop:?}");
+    // A task with one row has nothing to compare: no bold.
+    let stand = rows.iter().find(|r| r[0] == "walker-stand").unwrap();
+    assert!(stand.iter().all(|c| !c.contains("**")), "{stand:?}");
+    // Runs that stopped short of an hour and of the budget (pendulum-swingup's MLP seeds, at
+    // 200k) have no return there.
+    let pend = rows.iter().find(|r| r[0] == "pendulum-swingup").unwrap();
+    assert_eq!(pend[3], "-", "{pend:?}");
+}
+
+#[test]
 fn the_frontier_plans_each_run_once_and_starts_with_what_is_missing() {
     let empty = std::env::temp_dir().join(format!("frontier-plan-{}", std::process::id()));
     std::fs::create_dir_all(&empty).unwrap();

@@ -35,11 +35,6 @@ import runs
 HERE = Path(__file__).resolve().parent
 
 
-def budget(task):
-    """The frontier's budget for a task, in environment steps."""
-    return 100_000 if task == "cartpole-balance" else 500_000
-
-
 def table(lines, header_has):
     """The rows (dicts by header cell) of the markdown table whose header contains `header_has`."""
     start = next(i for i, line in enumerate(lines) if line.startswith("|") and header_has in line)
@@ -64,7 +59,7 @@ def published(reference):
     out = {}
     for r in table(lines, "SimBa (SAC + SimBa) mean"):
         task, at = r["task"], r["budget (env steps)"]
-        if at != f"{budget(task) // 1000}k":
+        if at != f"{runs.budget(task) // 1000}k":
             continue
         out[task] = {
             "TD-MPC2": mean_of(r["TD-MPC2 mean +- std (n)"]),
@@ -76,7 +71,7 @@ def published(reference):
         out[task]["BRO"] = f"{bro:.1f}" if bro is not None else None
     for r in table(lines, "BRO (`simba` `results/bro.csv`)"):
         task = r["task"]
-        if r["budget"] == f"{budget(task) // 1000}k" and out[task]["BRO"] is None:
+        if r["budget"] == f"{runs.budget(task) // 1000}k" and out[task]["BRO"] is None:
             out[task]["BRO"] = f"{mean_of(r['BRO (`simba` `results/bro.csv`)']):.1f} †"
     for r in table(lines, "| task | MPO | DMPO |"):
         task = r["task"].replace(" @100k", "")
@@ -89,7 +84,7 @@ def published(reference):
 
 def row_figure(root, task, dirs):
     """(cell text, mean at the budget or None) for one row's seeds."""
-    at = budget(task)
+    at = runs.budget(task)
     curves = [runs.read_rows(str(root / d)) for d in dirs if (root / d / "metrics.csv").exists()]
     if not curves:
         return None, None
@@ -111,7 +106,7 @@ def plot(root, out):
            "--out", str(out), "--title", "MPO: each task's default row against the frontier's target"]
     for task, (target, rows) in runs.TASK_ROWS.items():
         dirs = next(d for net, _label, d in rows if net == runs.DEFAULT_NET[task])
-        cmd += ["--target", f"{task}={target}", "--budget", f"{task}={budget(task)}"]
+        cmd += ["--target", f"{task}={target}", "--budget", f"{task}={runs.budget(task)}"]
         cmd += [str(root / d) for d in dirs if (root / d / "metrics.csv").exists()]
     subprocess.run(cmd, check=True, stdout=sys.stderr)
 
@@ -142,7 +137,7 @@ def main():
         for k, (label, text, mean) in enumerate(f for f in figures if f[1] is not None):
             met = "-" if mean is None else ("**yes**" if mean >= target else "no")
             if k == 0:
-                name = f"{task} ({budget(task) // 1000}k)"
+                name = f"{task} ({runs.budget(task) // 1000}k)"
                 cells = [pub[task].get(a) for a in agents]
                 theirs = " | ".join("n/a" if v is None else (v if isinstance(v, str) else f"{v:.1f}")
                                     for v in cells)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Wall clock to each task's target on this machine (docs/experiments.md, issue 35 item 5).
 
-Usage: docs/results/wall_clock.py RATES.json [MORE_RATES.json...]
+Usage: docs/results/wall_clock.py [--hours H[,H...]] RATES.json [MORE_RATES.json...]
 
 RATES.json is what `scripts/bench-rows --threads 1,2 --json RATES.json` wrote: each row's
 updates/s while learning and environment steps/s, on one thread and on two, measured in one
@@ -12,6 +12,14 @@ their updates and environment steps at those rates, as `per_hour.py` does: the h
 run's first evaluation at or above the target, or, where no evaluation reaches it, the run's
 best and the hours it had run. Evaluations and checkpoints (under 1% of a run) are left out.
 Prints a markdown table, one line per row.
+
+With `--hours 0.25,0.5,1,1.5` it prints instead which row buys the most return per hour: for
+each task and row, the mean over the row's seeds of the return each had after H hours of one
+thread (its last evaluation reached by then, at the rates above), the best row of each task
+and horizon in bold where two rows or more have a return there. A run that ended at the
+budget sooner counts with its final return (a user stops there; marked `done` where every
+seed had); a run that stopped short of both, as the rows made before this issue did, has no
+return at H, and its row shows `-` there.
 """
 import json
 import sys
@@ -39,13 +47,60 @@ def seed_result(rows, target, one, two):
     return None, (runs.best(rows), hours_to(last, one), hours_to(last, two), int(last["env_steps"]))
 
 
+def return_after(rows, rate, hours, budget):
+    """(return, ended) of a run after `hours` at a one-thread rate: its last evaluation reached
+    by then, its final one if it reached the budget sooner, (None, False) if it stopped short
+    of both. The first evaluation (step 0, no updates) is reached at once."""
+    last = rows[-1]
+    if hours_to(last, rate) <= hours:
+        if int(last["env_steps"]) >= budget:
+            return float(last["eval_return_mean"]), True
+        return None, False
+    reached = [r for r in rows if hours_to(r, rate) <= hours]
+    return float(reached[-1]["eval_return_mean"]), False
+
+
+def per_hour_table(rates, horizons):
+    """Markdown: each task's rows by their mean return after each horizon, the best bold."""
+    print("| task | row (seeds) | " + " | ".join(f"after {h:g} h" for h in horizons) + " |")
+    print("|---|---|" + "---:|" * len(horizons))
+    for task, (_, rows) in ROWS.items():
+        lines = []
+        for net, label, dirs in rows:
+            dirs = [d for d in dirs if (HERE / d / "metrics.csv").exists()]
+            one = rates.get((task, net, 1))
+            if not dirs or one is None:
+                continue
+            got = [[return_after(runs.read_rows(str(HERE / d)), one, h, runs.budget(task))
+                     for d in dirs] for h in horizons]
+            means = [None if any(v is None for v, _ in g) else sum(v for v, _ in g) / len(g)
+                     for g in got]
+            done = [all(e for _, e in g) for g in got]
+            lines.append((f"{label} ({len(dirs)})", means, done))
+        for i, (label, means, done) in enumerate(lines):
+            cells = []
+            for k, m in enumerate(means):
+                known = [ln[1][k] for ln in lines if ln[1][k] is not None]
+                cell = "-" if m is None else f"{m:.1f}" + (" done" if done[k] else "")
+                # Bold only where two rows or more can be compared.
+                cells.append(f"**{cell}**" if len(known) > 1 and m == max(known) else cell)
+            print(f"| {task if i == 0 else ''} | {label} | " + " | ".join(cells) + " |")
+
+
 def main():
     args = sys.argv[1:]
     runs.help_or_usage(__doc__, args)
+    horizons = None
+    if args[0] == "--hours":
+        horizons = [float(h) for h in args[1].split(",")]
+        args = args[2:]
     rates = {}
     for path in args:
         for r in json.load(open(path)):
             rates.setdefault((r["task"], r["net"], r["threads"]), r)
+    if horizons:
+        per_hour_table(rates, horizons)
+        return
     print("| task | target | row | updates/s, 1 / 2 threads | the budget takes (h), 1 / 2 threads "
           "| seeds at the target: hours to it, 1 / 2 threads (step) | the other seeds: best (hours run, 1 / 2 threads; steps) |")
     print("|---|---:|---|---|---|---|---|")
