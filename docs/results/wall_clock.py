@@ -92,6 +92,8 @@ def main():
     runs.help_or_usage(__doc__, args)
     horizons = None
     if args[0] == "--hours":
+        if len(args) < 3:
+            sys.exit("usage: wall_clock.py --hours H[,H...] RATES.json [MORE_RATES.json...]")
         horizons = [float(h) for h in args[1].split(",")]
         args = args[2:]
     rates = {}
