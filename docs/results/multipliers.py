@@ -2,10 +2,16 @@
 """Tabulates the covariance multiplier's wind-up of `mpo train` runs for docs/training.md.
 
 Usage: docs/results/multipliers.py [--above X] RUN_DIR...
+       docs/results/multipliers.py --mean RUN_DIR...
 (each RUN_DIR with metrics.csv). Per run, over the evaluations after learning started: how many
 have `alpha_cov` (the mean over the updates before the evaluation) above X (default 1e4), the
 first step where it is, the largest `alpha_cov`, the actor's gradient norm range at those
 evaluations, `std_max` at the last evaluation and the last evaluation's return.
+
+With `--mean`, the mean's multiplier instead: how many evaluations have `alpha_mean` below
+1e-6 (at its floor: over the updates before them the mean's KL stayed inside its bound without
+the multiplier, so the actor's steps, not the bound, set how far the mean moved), the mean of
+`kl_mean_rel` (the mean's KL over its bound) over the evaluations, and the last return.
 """
 import sys
 
@@ -29,8 +35,28 @@ def row(run, above):
     )
 
 
+def mean_row(run):
+    rows = [r for r in runs.read_rows(run) if r["alpha_mean"]]
+    if not rows:
+        return f"| {run} | no updates yet | | |"
+    floor = sum(1 for r in rows if float(r["alpha_mean"]) < 1e-6)
+    kl = sum(float(r["kl_mean_rel"]) for r in rows) / len(rows)
+    last = rows[-1]
+    return (f"| {run} | {floor} of {len(rows)} | {kl:.2f} "
+            f"| {float(last['eval_return_mean']):.1f} at {int(last['env_steps']) // 1000}k |")
+
+
 def main():
     args = sys.argv[1:]
+    if args[:1] == ["--mean"]:
+        if len(args) < 2:
+            sys.exit(__doc__)
+        print("| run | evaluations with `alpha_mean` at its floor (< 1e-6) "
+              "| `kl_mean_rel`, mean over them | return at the end |")
+        print("|---|---:|---:|---|")
+        for run in args[1:]:
+            print(mean_row(run))
+        return
     above = 1e4
     if args[:1] == ["--above"]:
         above, args = float(args[1]), args[2:]
