@@ -142,6 +142,25 @@ fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons()
 }
 
 #[test]
+fn the_mean_multiplier_table_counts_the_evaluations_at_its_floor() {
+    // docs/experiments.md quotes these: walker-run's `simba` seed 0 has `alpha_mean` below
+    // 1e-6 at 21 of its 25 evaluations after learning started, its MLP seed 0 at none of 50.
+    let md = run(
+        "docs/results/multipliers.py",
+        &[
+            "--mean",
+            "docs/results/walker-run/simba-seed0",
+            "docs/results/walker-run/default-seed0",
+        ],
+        &[],
+    );
+    let rows = table_rows(&md);
+    assert_eq!(rows.len(), 2, "{md}");
+    assert_eq!(rows[0][1], "21 of 25", "{:?}", rows[0]);
+    assert_eq!(rows[1][1], "0 of 50", "{:?}", rows[1]);
+}
+
+#[test]
 fn the_frontier_plans_each_run_once_and_starts_with_what_is_missing() {
     let empty = std::env::temp_dir().join(format!("frontier-plan-{}", std::process::id()));
     std::fs::create_dir_all(&empty).unwrap();
