@@ -9,9 +9,9 @@ first step where it is, the largest `alpha_cov`, the actor's gradient norm range
 evaluations, `std_max` at the last evaluation and the last evaluation's return.
 
 With `--mean`, the mean's multiplier instead: how many evaluations have `alpha_mean` below
-1e-6 (at its floor: over the updates before them the mean's KL stayed inside its bound without
-the multiplier, so the actor's steps, not the bound, set how far the mean moved), the mean of
-`kl_mean_rel` (the mean's KL over its bound) over the evaluations, and the last return.
+1e-6 (at its floor: over the updates before them the mean's KL crossed its bound too seldom to
+hold the multiplier up), the mean of `kl_mean_rel` (the mean's KL over its bound) over the
+evaluations, and the last return.
 """
 import sys
 
