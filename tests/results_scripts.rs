@@ -96,6 +96,16 @@ fn the_scoreboard_gives_every_task_its_rows_and_the_published_agents() {
         .unwrap();
     assert!(swing[3].contains("where the runs stopped"), "{swing:?}");
     assert_eq!(swing[4], "-");
+    // walker-stand's default: seed 0 to 500k (964.5 there), seeds 1 and 2 to 300k (949.7,
+    // 956.8, 909.9 at 300k: 938.8): the mean where all three ran, then seed 0's at the budget.
+    let stand = rows
+        .iter()
+        .find(|r| r[0].starts_with("walker-stand"))
+        .unwrap();
+    assert_eq!(
+        stand[3], "938.8 +- 20.6 (3) at 300k, where the runs stopped; at 500k: 964.5 (1)",
+        "{stand:?}"
+    );
 }
 
 #[test]

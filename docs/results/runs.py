@@ -28,7 +28,7 @@ TASK_ROWS = {
         ("simba", "`simba` (the default now)", [f"acrobot-swingup/simba-seed{s}" for s in range(3)]),
     ]),
     "walker-stand": (970, [
-        ("default", "default", [f"walker-stand/default-seed{s}" for s in range(3)]),
+        ("default", "default", ["walker-stand/mlp-seed0"] + [f"walker-stand/default-seed{s}" for s in (1, 2)]),
         ("simba", "`simba`", ["walker-stand/simba-seed0"]),
     ]),
     "walker-walk": (960, [

@@ -96,7 +96,15 @@ def row_figure(root, task, dirs):
         text += f" +- {statistics.pstdev(vals):.1f}"
     text += f" ({len(vals)})"
     if step < at:
-        return f"{text} at {step // 1000}k, where the runs stopped", None
+        text = f"{text} at {step // 1000}k, where the runs stopped"
+        # The seeds that did reach the budget still give the row a figure there.
+        done = [float(c[runs.index_at(c, at)]["eval_return_mean"])
+                for c in curves if int(c[-1]["env_steps"]) >= at]
+        if done:
+            text += f"; at {at // 1000}k: {statistics.fmean(done):.1f}"
+            text += f" +- {statistics.pstdev(done):.1f}" if len(done) > 1 else ""
+            text += f" ({len(done)})"
+        return text, None
     return text, statistics.fmean(vals)
 
 
