@@ -11,15 +11,20 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Runs a script of the repository with arguments; its standard output, or a panic with
-/// its standard error.
-fn run(script: &str, args: &[&str], envs: &[(&str, &Path)]) -> String {
+/// Runs a script of the repository with arguments, whatever its exit status.
+fn output(script: &str, args: &[&str], envs: &[(&str, &Path)]) -> std::process::Output {
     let mut cmd = Command::new("python3");
     cmd.arg(root().join(script)).args(args).current_dir(root());
     for (k, v) in envs {
         cmd.env(k, v);
     }
-    let out = cmd.output().expect("python3 runs");
+    cmd.output().expect("python3 runs")
+}
+
+/// Runs a script of the repository with arguments; its standard output, or a panic with
+/// its standard error.
+fn run(script: &str, args: &[&str], envs: &[(&str, &Path)]) -> String {
+    let out = output(script, args, envs);
     assert!(
         out.status.success(),
         "{script} {args:?} failed: {}",
@@ -154,8 +159,8 @@ fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons()
     assert!(!rows[at + 1][0].is_empty(), "walker-walk has one row: {md}");
     let walk = &rows[at];
     assert!(walk.iter().all(|c| !c.contains("**")), "{walk:?}");
-    // Runs that stopped short of an hour and of the budget (pendulum-swingup's MLP seeds, at
-    // 200k) have no return there.
+    // A row with runs that stopped short of an hour and of the budget (pendulum-swingup's MLP
+    // seeds 1 and 2, at 200k; its seed 0 reached the budget) has no mean there.
     let pend = rows.iter().find(|r| r[0] == "pendulum-swingup").unwrap();
     assert_eq!(pend[3], "-", "{pend:?}");
 }
@@ -177,6 +182,56 @@ fn the_mean_multiplier_table_counts_the_evaluations_at_its_floor() {
     assert_eq!(rows.len(), 2, "{md}");
     assert_eq!(rows[0][1], "21 of 25", "{:?}", rows[0]);
     assert_eq!(rows[1][1], "0 of 50", "{:?}", rows[1]);
+}
+
+#[test]
+fn the_wind_up_table_reads_either_multiplier() {
+    // docs/experiments.md quotes these: pendulum-swingup's MLP seed 0 has `alpha_mean` above
+    // 1e4 at 13 of 25 evaluations from 200k and `alpha_cov` at 15 from 180k; its `simba`
+    // seed 0's mean multiplier never.
+    let runs = [
+        "docs/results/pendulum-swingup/mlp-seed0",
+        "docs/results/pendulum-swingup/simba-seed0",
+    ];
+    let of_mean = ["--of", "alpha_mean", runs[0], runs[1]];
+    let mean = table_rows(&run("docs/results/multipliers.py", &of_mean, &[]));
+    assert_eq!(
+        (mean[0][1].as_str(), mean[0][2].as_str()),
+        ("13 of 25", "200k")
+    );
+    assert_eq!(mean[1][1], "0 of 25", "{:?}", mean[1]);
+    let cov = table_rows(&run("docs/results/multipliers.py", &runs, &[]));
+    assert_eq!(
+        (cov[0][1].as_str(), cov[0][2].as_str()),
+        ("15 of 25", "180k")
+    );
+}
+
+#[test]
+fn a_rerun_of_a_seed_is_the_same_run_and_another_seed_is_not() {
+    // walker-stand's MLP seed 0 to 500k (2026-12-07) repeats the seed's run to 300k
+    // (2026-12-02) in every column but the timings; seed 1 differs from it.
+    let same = run(
+        "docs/results/same_run.py",
+        &["walker-stand/default-seed0", "walker-stand/mlp-seed0"],
+        &[],
+    );
+    assert!(
+        same.trim_end()
+            .ends_with("16 evaluations (0k-300k), 28 columns but the timings: equal"),
+        "{same}"
+    );
+    let other = output(
+        "docs/results/same_run.py",
+        &["walker-stand/default-seed1", "walker-stand/mlp-seed0"],
+        &[],
+    );
+    assert_eq!(other.status.code(), Some(1));
+    let text = String::from_utf8_lossy(&other.stdout);
+    assert!(
+        text.contains("differs at 20000: eval_return_mean"),
+        "{text}"
+    );
 }
 
 #[test]

@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
 """Tabulates the covariance multiplier's wind-up of `mpo train` runs for docs/training.md.
 
-Usage: docs/results/multipliers.py [--above X] RUN_DIR...
+Usage: docs/results/multipliers.py [--above X] [--of alpha_mean] RUN_DIR...
        docs/results/multipliers.py --mean RUN_DIR...
 (each RUN_DIR with metrics.csv). Per run, over the evaluations after learning started: how many
 have `alpha_cov` (the mean over the updates before the evaluation) above X (default 1e4), the
 first step where it is, the largest `alpha_cov`, the actor's gradient norm range at those
-evaluations, `std_max` at the last evaluation and the last evaluation's return.
+evaluations, `std_max` at the last evaluation and the last evaluation's return. With
+`--of alpha_mean`, the same of the mean's multiplier.
 
 With `--mean`, the mean's multiplier instead: how many evaluations have `alpha_mean` below
 1e-6 (at its floor: over the updates before them the mean's KL crossed its bound too seldom to
@@ -18,18 +19,18 @@ import sys
 import runs
 
 
-def row(run, above):
-    rows = [r for r in runs.read_rows(run) if r["alpha_cov"]]
+def row(run, above, col):
+    rows = [r for r in runs.read_rows(run) if r[col]]
     if not rows:
         return f"| {run} | no updates yet | | | | | |"
-    wound = [r for r in rows if float(r["alpha_cov"]) > above]
+    wound = [r for r in rows if float(r[col]) > above]
     first = f"{int(wound[0]['env_steps']) // 1000}k" if wound else "-"
     grads = [float(r["actor_grad_norm"]) for r in wound]
     grad = f"{min(grads):.3g}-{max(grads):.3g}" if grads else "-"
     last = rows[-1]
     return (
         f"| {run} | {len(wound)} of {len(rows)} | {first} "
-        f"| {max(float(r['alpha_cov']) for r in rows):.2g} | {grad} "
+        f"| {max(float(r[col]) for r in rows):.2g} | {grad} "
         f"| {float(last['std_max']):.2f} "
         f"| {float(last['eval_return_mean']):.1f} at {int(last['env_steps']) // 1000}k |"
     )
@@ -57,18 +58,24 @@ def main():
         for run in args[1:]:
             print(mean_row(run))
         return
-    above = 1e4
-    if args[:1] == ["--above"]:
-        above, args = float(args[1]), args[2:]
+    above, col = 1e4, "alpha_cov"
+    while args[:1] in (["--above"], ["--of"]) and len(args) > 1:
+        if args[0] == "--above":
+            above = float(args[1])
+        elif args[1] in ("alpha_cov", "alpha_mean"):
+            col = args[1]
+        else:
+            sys.exit(f"--of takes alpha_cov or alpha_mean, not {args[1]}")
+        args = args[2:]
     if not args:
         sys.exit(__doc__)
     print(
-        f"| run | evaluations with `alpha_cov` > {above:g} | first at | largest `alpha_cov` "
+        f"| run | evaluations with `{col}` > {above:g} | first at | largest `{col}` "
         "| actor gradient norm there | `std_max` at the end | return at the end |"
     )
     print("|---|---:|---:|---:|---|---:|---|")
     for run in args:
-        print(row(run, above))
+        print(row(run, above, col))
 
 
 if __name__ == "__main__":

@@ -82,6 +82,14 @@ def published(reference):
     return out
 
 
+def seeds_at(curves, step):
+    """("mean +- std (seeds)", mean) of the curves' returns at `step` (no std for one seed)."""
+    vals = [float(c[runs.index_at(c, step)]["eval_return_mean"]) for c in curves]
+    mean = statistics.fmean(vals)
+    spread = f" +- {statistics.pstdev(vals):.1f}" if len(vals) > 1 else ""
+    return f"{mean:.1f}{spread} ({len(vals)})", mean
+
+
 def row_figure(root, task, dirs):
     """(cell text, mean at the budget or None) for one row's seeds."""
     at = runs.budget(task)
@@ -89,23 +97,14 @@ def row_figure(root, task, dirs):
     if not curves:
         return None, None
     common = min(int(c[-1]["env_steps"]) for c in curves)
-    step = at if common >= at else common
-    vals = [float(c[runs.index_at(c, step)]["eval_return_mean"]) for c in curves]
-    text = f"{statistics.fmean(vals):.1f}"
-    if len(vals) > 1:
-        text += f" +- {statistics.pstdev(vals):.1f}"
-    text += f" ({len(vals)})"
-    if step < at:
-        text = f"{text} at {step // 1000}k, where the runs stopped"
-        # The seeds that did reach the budget still give the row a figure there.
-        done = [float(c[runs.index_at(c, at)]["eval_return_mean"])
-                for c in curves if int(c[-1]["env_steps"]) >= at]
-        if done:
-            text += f"; at {at // 1000}k: {statistics.fmean(done):.1f}"
-            text += f" +- {statistics.pstdev(done):.1f}" if len(done) > 1 else ""
-            text += f" ({len(done)})"
-        return text, None
-    return text, statistics.fmean(vals)
+    if common >= at:
+        return seeds_at(curves, at)
+    text = f"{seeds_at(curves, common)[0]} at {common // 1000}k, where the runs stopped"
+    # The seeds that did reach the budget still give the row a figure there.
+    done = [c for c in curves if int(c[-1]["env_steps"]) >= at]
+    if done:
+        text += f"; at {at // 1000}k: {seeds_at(done, at)[0]}"
+    return text, None
 
 
 def plot(root, out):
