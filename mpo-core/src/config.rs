@@ -113,6 +113,14 @@ pub struct MpoConfig {
     /// f32's subnormal range, which x86 cores compute in microcode. 0 = off (every atom
     /// kept, the head's arithmetic before the floor existed).
     pub logit_floor: f32,
+    /// The ceiling of `ln alpha` for both M-step multipliers (their floor is
+    /// `-mstep::LOG_ALPHA_MAX`). The default, `LOG_ALPHA_MAX` (18), lets a multiplier reach
+    /// `e^18`, about 6.6e7; the multipliers move by about `dual_lr` in `ln alpha` per M-step
+    /// iteration, so they can cross that whole range within a thousand updates, and a
+    /// multiplier that large leaves the actor's clipped gradient almost all KL term. A lower
+    /// ceiling (e.g. `ln 1000`, Acme's initial covariance multiplier) bounds that; a run
+    /// whose multipliers stay below it is bit-identical to one without it.
+    pub log_alpha_max: f32,
 }
 
 impl MpoConfig {
@@ -152,6 +160,7 @@ impl MpoConfig {
         reset_interval: 0,
         weight_norm: false,
         logit_floor: 40.0,
+        log_alpha_max: crate::mstep::LOG_ALPHA_MAX,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -244,6 +253,15 @@ impl MpoConfig {
                 requirement: "a finite number >= 0 (0 = off)",
             });
         }
+        if !(self.log_alpha_max.is_finite()
+            && self.log_alpha_max > -crate::mstep::LOG_ALPHA_MAX
+            && self.log_alpha_max <= crate::mstep::LOG_ALPHA_MAX)
+        {
+            return Err(ConfigError {
+                field: "log_alpha_max",
+                requirement: "in (-18, 18] (the multipliers' floor is e^-18)",
+            });
+        }
         if self.std_floor >= self.init_std {
             return Err(ConfigError {
                 field: "std_floor",
@@ -255,7 +273,7 @@ impl MpoConfig {
 }
 
 /// Words of [`MpoConfig::to_words`].
-pub const CONFIG_WORDS: usize = 35;
+pub const CONFIG_WORDS: usize = 36;
 
 impl MpoConfig {
     /// The configuration as 32-bit words in a fixed order (floats as their bits, flags as
@@ -299,6 +317,7 @@ impl MpoConfig {
             self.reset_interval,
             self.weight_norm as u32,
             f(self.logit_floor),
+            f(self.log_alpha_max),
         ]
     }
 
@@ -348,6 +367,7 @@ impl MpoConfig {
             reset_interval: w[32],
             weight_norm: flag(w[33], "weight_norm")?,
             logit_floor: f(w[34]),
+            log_alpha_max: f(w[35]),
         };
         cfg.validate()?;
         Ok(cfg)
@@ -404,6 +424,7 @@ mod tests {
             reset_interval: 1000,
             weight_norm: true,
             logit_floor: 25.5,
+            log_alpha_max: 6.9,
             ..MpoConfig::REPORT
         };
         let w = cfg.to_words();
@@ -426,5 +447,12 @@ mod tests {
         let mut bad = w;
         bad[4] = 2.0f32.to_bits(); // gamma out of range
         assert!(MpoConfig::from_words(&bad).is_err());
+        // The multipliers' ceiling: above the old clamp, at or below its floor, or NaN.
+        for v in [18.5f32, -18.0, f32::NAN] {
+            let mut bad = w;
+            bad[35] = v.to_bits();
+            let e = MpoConfig::from_words(&bad).unwrap_err();
+            assert_eq!(e.field, "log_alpha_max");
+        }
     }
 }

@@ -23,7 +23,8 @@ use crate::gaussian::{
     weighted_log_prob_mean,
 };
 
-/// Clamp of `ln alpha` (Acme clamps the duals below at `exp(-18)`).
+/// Clamp of `ln alpha` (Acme clamps the duals below at `exp(-18)`): `-LOG_ALPHA_MAX` is the
+/// floor, and the default of the ceiling (`MpoConfig::log_alpha_max`).
 pub const LOG_ALPHA_MAX: f32 = 18.0;
 
 /// The M-step multipliers (log parameterisation) with their Adam state, and the E-step's
@@ -129,7 +130,7 @@ pub fn state_gradient<const A: usize, const T: usize>(
 /// a factor of about `e^dual_lr` whatever the scale of the KL.
 /// Without per-dimension KL every entry sees the total against the whole bound; with it,
 /// dimension `k` sees its own KL against `eps / ACT`. The raw values are clamped to
-/// `[-LOG_ALPHA_MAX, LOG_ALPHA_MAX]`.
+/// `[-LOG_ALPHA_MAX, cfg.log_alpha_max]`.
 pub fn update_multipliers<const A: usize>(
     d: &mut Duals<A>,
     cfg: &MpoConfig,
@@ -165,7 +166,7 @@ pub fn update_multipliers<const A: usize>(
         .iter_mut()
         .chain(d.alpha_cov_raw.iter_mut())
     {
-        *r = r.clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
+        *r = r.clamp(-LOG_ALPHA_MAX, cfg.log_alpha_max);
     }
 }
 

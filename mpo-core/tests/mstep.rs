@@ -196,6 +196,54 @@ fn multipliers_rise_while_the_kl_exceeds_its_bound_and_fall_below_it() {
     );
 }
 
+/// `log_alpha_max` holds both multipliers at or below its ceiling, from their first value
+/// (an initial multiplier above it starts at it) through bounds no policy meets; without it
+/// the same run's multipliers climb far past that value (the check can fail).
+#[test]
+fn the_multipliers_ceiling_holds_them_and_only_binds_when_reached() {
+    let unmeetable = MpoConfig {
+        eps_mean: 1e-9,
+        eps_cov: 1e-12,
+        alpha_cov_init: 1e3,
+        ..aggressive()
+    };
+    let ceiling = libm::logf(50.0);
+    let capped = run(
+        MpoConfig {
+            log_alpha_max: ceiling,
+            ..unmeetable
+        },
+        200,
+    );
+    let top = libm::expf(ceiling);
+    assert_eq!(capped.alpha_before[0].1, top, "the initial 1e3 starts at the ceiling");
+    let most = capped
+        .alpha_before
+        .iter()
+        .fold(0f32, |m, a| m.max(a.0).max(a.1));
+    assert_eq!(most, top, "a multiplier above the ceiling, or never at it");
+    let free = run(unmeetable, 200);
+    let (am, ac) = *free.alpha_before.last().unwrap();
+    assert!(
+        am > 2.0 * top && ac > 2.0 * top,
+        "without the ceiling: {am} {ac}"
+    );
+    // Below the ceiling nothing changes: a ceiling the multipliers never reach gives the
+    // default's bits.
+    let cfg = aggressive();
+    let high = run(
+        MpoConfig {
+            log_alpha_max: 17.0,
+            ..cfg
+        },
+        50,
+    );
+    let default = run(cfg, 50);
+    assert!(default.alpha_before.iter().all(|a| a.0 < 1e7 && a.1 < 1e7));
+    assert_eq!(high.alpha_before, default.alpha_before);
+    assert_eq!(high.kl, default.kl);
+}
+
 /// A covariance bound a thousand times tighter than the report's is held at its own scale.
 /// How tight a bound an M-step can hold is limited by its optimiser: Adam moves each parameter
 /// by about `lr` per step whatever the gradient, so with the report's `lr = 3e-4` the floor

@@ -163,6 +163,12 @@ pub struct MpoSettings {
     /// runs trained, so they resume with the same bits.
     #[serde(default)]
     pub logit_floor: f64,
+    /// The ceiling of `ln alpha` for both M-step multipliers (the core's
+    /// `MpoConfig::log_alpha_max`): 18 (about 6.6e7) unless set; e.g. 6.9 holds them at or
+    /// below about 1000. Missing in a file or checkpoint written before it existed: 18, the
+    /// ceiling those runs trained with.
+    #[serde(default = "MpoSettings::default_log_alpha_max")]
+    pub log_alpha_max: f64,
 }
 
 impl MpoSettings {
@@ -203,6 +209,7 @@ impl MpoSettings {
         reset_interval: 0,
         weight_norm: false,
         logit_floor: 40.0,
+        log_alpha_max: 18.0,
     };
 
     fn default_value_min() -> f64 {
@@ -215,6 +222,10 @@ impl MpoSettings {
 
     fn default_value_sigma() -> f64 {
         Self::REPORT.value_sigma
+    }
+
+    fn default_log_alpha_max() -> f64 {
+        Self::REPORT.log_alpha_max
     }
 
     /// The learner's configuration (one `f64 -> f32` rounding per field). Every field is
@@ -259,6 +270,7 @@ impl MpoSettings {
             reset_interval: self.reset_interval,
             weight_norm: self.weight_norm,
             logit_floor: self.logit_floor as f32,
+            log_alpha_max: self.log_alpha_max as f32,
         }
     }
 }
@@ -584,6 +596,24 @@ mod tests {
         assert!(
             d.iter()
                 .any(|s| s.contains("`seed` is 0 in the checkpoint, 3 here"))
+        );
+    }
+
+    /// A run's `config.toml` written before the multipliers' ceiling was a setting resumes
+    /// with the ceiling it trained with (18), not with some other value.
+    #[test]
+    fn settings_without_the_multiplier_ceiling_read_as_the_old_clamp() {
+        let mut table = toml::Table::try_from(MpoSettings {
+            log_alpha_max: 6.9,
+            ..MpoSettings::REPORT
+        })
+        .unwrap();
+        assert_eq!(table.remove("log_alpha_max"), Some(toml::Value::Float(6.9)));
+        let old: MpoSettings = table.try_into().unwrap();
+        assert_eq!(old.log_alpha_max, 18.0);
+        assert_eq!(
+            old.to_config().log_alpha_max,
+            mpo_core::mstep::LOG_ALPHA_MAX
         );
     }
 

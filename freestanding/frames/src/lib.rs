@@ -195,7 +195,7 @@ pub const START_LEN: usize = 8 + 8 + 8 + 4 + 4 + CONFIG_LEN;
 /// the trainer assert at compile time that the two counts agree.
 pub const CONFIG_LEN: usize = 4 * CONFIG_FIELDS;
 /// Words of the configuration.
-pub const CONFIG_FIELDS: usize = 35;
+pub const CONFIG_FIELDS: usize = 36;
 
 /// Reads a little-endian u32 at `at`.
 pub fn u32_at(b: &[u8], at: usize) -> u32 {

@@ -216,7 +216,7 @@ impl<
         l.critic_v.fill_zero();
         l.actor_opt = AdamState::default();
         l.critic_opt = AdamState::default();
-        let raw = |x: f32| libm::logf(x).clamp(-LOG_ALPHA_MAX, LOG_ALPHA_MAX);
+        let raw = |x: f32| libm::logf(x).clamp(-LOG_ALPHA_MAX, cfg.log_alpha_max);
         l.duals = Duals {
             eta: cfg.eta_init,
             eta_penalty: cfg.eta_init,
