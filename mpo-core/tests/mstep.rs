@@ -216,7 +216,10 @@ fn the_multipliers_ceiling_holds_them_and_only_binds_when_reached() {
         200,
     );
     let top = libm::expf(ceiling);
-    assert_eq!(capped.alpha_before[0].1, top, "the initial 1e3 starts at the ceiling");
+    assert_eq!(
+        capped.alpha_before[0].1, top,
+        "the initial 1e3 starts at the ceiling"
+    );
     let most = capped
         .alpha_before
         .iter()
