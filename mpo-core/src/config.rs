@@ -118,8 +118,9 @@ pub struct MpoConfig {
     /// `e^18`, about 6.6e7; the multipliers move by about `dual_lr` in `ln alpha` per M-step
     /// iteration, so they can cross that whole range within a thousand updates, and a
     /// multiplier that large leaves the actor's clipped gradient almost all KL term. A lower
-    /// ceiling (e.g. `ln 1000`, Acme's initial covariance multiplier) bounds that; a run
-    /// whose multipliers stay below it is bit-identical to one without it.
+    /// ceiling (e.g. 6.908, just above `ln 1000`, the initial covariance multiplier) bounds
+    /// that; a run whose multipliers stay below it is bit-identical to one without it (an
+    /// initial multiplier above it starts at it).
     pub log_alpha_max: f32,
 }
 

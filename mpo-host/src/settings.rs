@@ -164,9 +164,11 @@ pub struct MpoSettings {
     #[serde(default)]
     pub logit_floor: f64,
     /// The ceiling of `ln alpha` for both M-step multipliers (the core's
-    /// `MpoConfig::log_alpha_max`): 18 (about 6.6e7) unless set; e.g. 6.9 holds them at or
-    /// below about 1000. Missing in a file or checkpoint written before it existed: 18, the
-    /// ceiling those runs trained with.
+    /// `MpoConfig::log_alpha_max`): 18 (about 6.6e7) unless set; e.g. 6.908 holds them at or
+    /// below about 1000 (a ceiling below an initial multiplier's logarithm starts that
+    /// multiplier at the ceiling: `ln 1000` itself rounds just below `ln` of the covariance's
+    /// initial 1000 in f32). Missing in a file or checkpoint written before it existed: 18,
+    /// the ceiling those runs trained with.
     #[serde(default = "MpoSettings::default_log_alpha_max")]
     pub log_alpha_max: f64,
 }
