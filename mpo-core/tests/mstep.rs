@@ -198,7 +198,7 @@ fn multipliers_rise_while_the_kl_exceeds_its_bound_and_fall_below_it() {
 
 /// `log_alpha_max` holds both multipliers at or below its ceiling, from their first value
 /// (an initial multiplier above it starts at it) through bounds no policy meets; without it
-/// the same run's multipliers climb far past that value (the check can fail).
+/// the same run's multipliers climb past twice that value (the check can fail).
 #[test]
 fn the_multipliers_ceiling_holds_them_and_only_binds_when_reached() {
     let unmeetable = MpoConfig {
