@@ -9,6 +9,12 @@
 //! - tonic: eps_mean 1e-3, eps_cov 1e-6, lr 3e-4, 5-step returns;
 //! - the paper: Adam 5e-4.
 
+/// Clamp of the M-step multipliers' `ln alpha` (Acme clamps the duals below at `exp(-18)`):
+/// `-LOG_ALPHA_MAX` is the floor, and the default of the ceiling (`MpoConfig::log_alpha_max`).
+/// It lives here, not in `mstep`, because the configuration's default and validation need it
+/// and `mstep` reads the configuration.
+pub const LOG_ALPHA_MAX: f32 = 18.0;
+
 /// MPO hyperparameters.
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Zeroable)]
 pub struct MpoConfig {
@@ -114,7 +120,7 @@ pub struct MpoConfig {
     /// kept, the head's arithmetic before the floor existed).
     pub logit_floor: f32,
     /// The ceiling of `ln alpha` for both M-step multipliers (their floor is
-    /// `-mstep::LOG_ALPHA_MAX`). The default, `LOG_ALPHA_MAX` (18), lets a multiplier reach
+    /// `-LOG_ALPHA_MAX`). The default, `LOG_ALPHA_MAX` (18), lets a multiplier reach
     /// `e^18`, about 6.6e7; the multipliers move by about `dual_lr` in `ln alpha` per M-step
     /// iteration, so they can cross that whole range within a thousand updates, and a
     /// multiplier that large leaves the actor's clipped gradient almost all KL term. A lower
@@ -161,7 +167,7 @@ impl MpoConfig {
         reset_interval: 0,
         weight_norm: false,
         logit_floor: 40.0,
-        log_alpha_max: crate::mstep::LOG_ALPHA_MAX,
+        log_alpha_max: LOG_ALPHA_MAX,
     };
 
     /// Checks every field; the first problem found is returned.
@@ -255,8 +261,8 @@ impl MpoConfig {
             });
         }
         if !(self.log_alpha_max.is_finite()
-            && self.log_alpha_max > -crate::mstep::LOG_ALPHA_MAX
-            && self.log_alpha_max <= crate::mstep::LOG_ALPHA_MAX)
+            && self.log_alpha_max > -LOG_ALPHA_MAX
+            && self.log_alpha_max <= LOG_ALPHA_MAX)
         {
             return Err(ConfigError {
                 field: "log_alpha_max",

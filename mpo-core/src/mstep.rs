@@ -17,15 +17,11 @@
 use bytemuck::Zeroable;
 
 use crate::adam::{AdamConfig, AdamState};
-use crate::config::MpoConfig;
+use crate::config::{LOG_ALPHA_MAX, MpoConfig};
 use crate::gaussian::{
     Gaussian, GaussianGrad, SampleStats, head_backward, kl_per_dim_grad, weighted_log_prob_cov,
     weighted_log_prob_mean,
 };
-
-/// Clamp of `ln alpha` (Acme clamps the duals below at `exp(-18)`): `-LOG_ALPHA_MAX` is the
-/// floor, and the default of the ceiling (`MpoConfig::log_alpha_max`).
-pub const LOG_ALPHA_MAX: f32 = 18.0;
 
 /// The M-step multipliers (log parameterisation) with their Adam state, and the E-step's
 /// temperatures: every dual variable an update carries to the next.

@@ -615,7 +615,7 @@ mod tests {
         assert_eq!(old.log_alpha_max, 18.0);
         assert_eq!(
             old.to_config().log_alpha_max,
-            mpo_core::mstep::LOG_ALPHA_MAX
+            mpo_core::config::LOG_ALPHA_MAX
         );
     }
 
