@@ -13,7 +13,9 @@ for s in 0 1 2 3 4; do link cartpole-balance $s clip-dual-1e-3-seed$s; done
 for s in 0 1 2; do link pendulum-swingup $s clip-critic-actions-seed$s; done
 for s in 0 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
-link walker-run 0 default-seed0
+# walker-run: the `simba` row, its default since 2026-12-07 (the MLP seeds: default-seed0,
+# mlp-seed1, mlp-seed2).
+for s in 0 1 2; do link walker-run $s simba-seed$s; done
 for s in 0 1 2; do link cheetah-run $s default-seed$s; done
 # hopper-stand: the `simba` row, its default since 2026-12-06 (one seed; the MLP seeds:
 # eps-penalty-0.01-seed*).
@@ -34,7 +36,7 @@ LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}:$PWD/.deps/mujoco "$mpo" plot --by-task \
     --target cartpole-balance=900 --target cartpole-swingup=800 --target pendulum-swingup=750 \
     --target walker-stand=950 --target walker-walk=900 --target walker-run=500 \
     --target cheetah-run=600 --target hopper-stand=700 --target hopper-hop=100 \
-    --budget cartpole-swingup=500000 --budget walker-walk=500000 --budget walker-run=1000000 \
+    --budget cartpole-swingup=500000 --budget walker-walk=500000 --budget walker-run=500000 \
     --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget hopper-hop=500000 \
     --budget acrobot-swingup=500000 \
     --out "$r/overview.png" "$@"
