@@ -20,7 +20,7 @@ TASK_ROWS = {
         ("simba", "`simba` (the default now)", [f"cartpole-swingup/simba-seed{s}" for s in range(3)]),
     ]),
     "pendulum-swingup": (820, [
-        ("default", "default", ["pendulum-swingup/mlp-seed0"] + [f"pendulum-swingup/clip-critic-actions-seed{s}" for s in (1, 2)]),
+        ("default", "default", ["pendulum-swingup/mlp-seed0", "pendulum-swingup/mlp-seed1", "pendulum-swingup/clip-critic-actions-seed2"]),
         ("simba", "`simba`", ["pendulum-swingup/simba-seed0"]),
     ]),
     "acrobot-swingup": (300, [
