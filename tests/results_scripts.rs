@@ -159,10 +159,10 @@ fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons()
     assert!(!rows[at + 1][0].is_empty(), "walker-walk has one row: {md}");
     let walk = &rows[at];
     assert!(walk.iter().all(|c| !c.contains("**")), "{walk:?}");
-    // A row with runs that stopped short of an hour and of the budget (pendulum-swingup's MLP
-    // seeds 1 and 2, at 200k; its seed 0 reached the budget) has no mean there.
-    let pend = rows.iter().find(|r| r[0] == "pendulum-swingup").unwrap();
-    assert_eq!(pend[3], "-", "{pend:?}");
+    // A row with runs that stopped short of an hour and of the budget (walker-stand's MLP
+    // seeds 1 and 2, at 300k; its seed 0 reached the budget) has no mean there.
+    let stand = rows.iter().find(|r| r[0] == "walker-stand").unwrap();
+    assert_eq!(stand[3], "-", "{stand:?}");
 }
 
 #[test]
@@ -323,17 +323,23 @@ fn compare_counts_the_evaluations_a_row_leads_and_its_window_means() {
 }
 
 #[test]
-fn the_scripts_know_which_tasks_train_simba_by_default_as_the_table_does() {
-    // docs/results/runs.py's SIMBA_DEFAULT (read by scripts/frontier and scripts/bench-rows)
+fn the_scripts_know_which_row_each_moved_default_repeats_as_the_table_does() {
+    // docs/results/runs.py's MOVED_DEFAULT (read by scripts/frontier and scripts/bench-rows)
     // against the built-in rows: exactly those tasks have an `mlp` row, and their `default`
-    // row is the `simba` row's networks.
+    // row is the named row it lists (its networks, settings, schedule and budget).
     let listed = Command::new("python3")
-        .args(["-c", "import runs; print(' '.join(runs.SIMBA_DEFAULT))"])
+        .args([
+            "-c",
+            "import runs; print(' '.join(f'{t}={n}' for t, n in runs.MOVED_DEFAULT.items()))",
+        ])
         .current_dir(root().join("docs/results"))
         .output()
         .expect("python3 runs");
     let listed = String::from_utf8(listed.stdout).unwrap();
-    let mut listed: Vec<&str> = listed.split_whitespace().collect();
+    let mut listed: Vec<(&str, &str)> = listed
+        .split_whitespace()
+        .map(|p| p.split_once('=').unwrap())
+        .collect();
     listed.sort();
     let mut table: Vec<&str> = mpo_host::table::rows()
         .iter()
@@ -341,13 +347,15 @@ fn the_scripts_know_which_tasks_train_simba_by_default_as_the_table_does() {
         .map(|r| r.task.as_str())
         .collect();
     table.sort();
-    assert_eq!(listed, table);
-    for task in &table {
+    assert_eq!(listed.iter().map(|p| p.0).collect::<Vec<_>>(), table);
+    for (task, named) in &listed {
         let d = mpo_host::table::row(task, "default").unwrap();
-        let simba = mpo_host::table::row(task, "simba").unwrap();
+        let r = mpo_host::table::row(task, named).unwrap();
+        assert_eq!(d.sizes, r.sizes, "{task}'s default is not its {named} row");
         assert_eq!(
-            d.sizes, simba.sizes,
-            "{task}'s default is not its simba row"
+            (d.steps, format!("{:?}", d.schedule), format!("{:?}", d.mpo)),
+            (r.steps, format!("{:?}", r.schedule), format!("{:?}", r.mpo)),
+            "{task}'s default is not its {named} row"
         );
     }
 }

@@ -68,7 +68,7 @@ def per_hour_table(rates, horizons):
         lines = []
         for net, label, dirs in rows:
             dirs = [d for d in dirs if (HERE / d / "metrics.csv").exists()]
-            one = rates.get((task, net, 1))
+            one = rates.get((task, runs.rate_net(task, net), 1))
             if not dirs or one is None:
                 continue
             got = [[return_after(runs.read_rows(str(HERE / d)), one, h, runs.budget(task))
@@ -111,7 +111,10 @@ def main():
             dirs = [d for d in dirs if (HERE / d / "metrics.csv").exists()]
             if not dirs:
                 continue
-            one, two = rates.get((task, net, 1)), rates.get((task, net, 2))
+            rate = runs.rate_net(task, net)
+            one, two = rates.get((task, rate, 1)), rates.get((task, rate, 2))
+            if rate != net:
+                label += f" (at the `{rate}` row's rate)"
             if one is None or two is None:
                 print(f"| {task} | {target} | {label} | not measured | | | |")
                 continue
