@@ -10,7 +10,8 @@ trap 'rm -rf "$tmp"' EXIT
 # link TASK SEED DIR: the run DIR as the curve "seedSEED" in TASK's panel
 link() { mkdir -p "$tmp/$1"; ln -s "$PWD/$r/$1/$3" "$tmp/$1/seed$2"; }
 for s in 0 1 2 3 4; do link cartpole-balance $s clip-dual-1e-3-seed$s; done
-for s in 0 1 2; do link pendulum-swingup $s clip-critic-actions-seed$s; done
+# pendulum-swingup: the `ceiling` row, its default since 2026-12-07 (the MLP seeds: mlp-seed*).
+for s in 0 1 2; do link pendulum-swingup $s mlp-alphamax1e3-seed$s; done
 for s in 0 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
 # walker-run: the `simba` row, its default since 2026-12-07 (the MLP seeds: default-seed0,
@@ -36,7 +37,7 @@ LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}:$PWD/.deps/mujoco "$mpo" plot --by-task \
     --target cartpole-balance=900 --target cartpole-swingup=800 --target pendulum-swingup=750 \
     --target walker-stand=950 --target walker-walk=900 --target walker-run=500 \
     --target cheetah-run=600 --target hopper-stand=700 --target hopper-hop=100 \
-    --budget cartpole-swingup=500000 --budget walker-walk=500000 --budget walker-run=500000 \
+    --budget cartpole-swingup=500000 --budget pendulum-swingup=500000 --budget walker-walk=500000 --budget walker-run=500000 \
     --budget cheetah-run=1000000 --budget hopper-stand=1000000 --budget hopper-hop=500000 \
     --budget acrobot-swingup=500000 \
     --out "$r/overview.png" "$@"
