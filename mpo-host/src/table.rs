@@ -235,7 +235,7 @@ pub const PENDULUM_MPO: MpoSettings = MpoSettings {
 
 /// pendulum-swingup's default settings since 2026-12-07: [`PENDULUM_MPO`] with the M-step's
 /// multipliers held at or below `e^6.908` (about 1000). Without the ceiling they wound up to
-/// 1e6-1e7 on every seed run to 500k, and one seed of three fell three times after 200k
+/// 1e6-5e7 on every seed run to 500k, and one seed of three fell three times after 200k
 /// (docs/rows.md, "pendulum-swingup").
 pub const PENDULUM_CEILING_MPO: MpoSettings = MpoSettings {
     log_alpha_max: 6.908,
