@@ -351,10 +351,9 @@ fn the_scripts_know_which_row_each_moved_default_repeats_as_the_table_does() {
     for (task, named) in &listed {
         let d = mpo_host::table::row(task, "default").unwrap();
         let r = mpo_host::table::row(task, named).unwrap();
-        assert_eq!(d.sizes, r.sizes, "{task}'s default is not its {named} row");
         assert_eq!(
-            (d.steps, format!("{:?}", d.schedule), format!("{:?}", d.mpo)),
-            (r.steps, format!("{:?}", r.schedule), format!("{:?}", r.mpo)),
+            (&d.sizes, d.steps, &d.schedule, &d.mpo),
+            (&r.sizes, r.steps, &r.schedule, &r.mpo),
             "{task}'s default is not its {named} row"
         );
     }

@@ -56,15 +56,16 @@ TASK_ROWS = {
     ]),
 }
 
-# Tasks whose default row (`mpo train --task TASK`) is the `simba` row since this issue.
-SIMBA_DEFAULT = ("hopper-hop", "acrobot-swingup", "cartpole-swingup", "hopper-stand", "walker-run")
-
 # The tasks whose default moved off their MLP row in this issue, and the named row their default
 # repeats (the same networks, settings and budget): `simba`, or on pendulum-swingup `ceiling`
 # (the MLP with the multipliers' ceiling). Their MLP row, the default before, is `--net mlp`
 # (mpo-host/src/table.rs; tests/results_scripts.rs checks the three agree). scripts/frontier and
 # scripts/bench-rows read it from here.
-MOVED_DEFAULT = {**{t: "simba" for t in SIMBA_DEFAULT}, "pendulum-swingup": "ceiling"}
+MOVED_DEFAULT = {
+    **{t: "simba" for t in ("hopper-hop", "acrobot-swingup", "cartpole-swingup", "hopper-stand",
+                            "walker-run")},
+    "pendulum-swingup": "ceiling",
+}
 
 # The row each task trains by default, by its `net` above.
 DEFAULT_NET = {task: MOVED_DEFAULT.get(task, "default") for task in TASK_ROWS}
