@@ -166,6 +166,25 @@ fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons()
 }
 
 #[test]
+fn the_per_hour_table_reads_a_run_carried_past_its_budget_at_the_budget() {
+    // walker-run's MLP seed 0 ran on to 1M (2.44 hours of one thread); after two hours a user
+    // who stopped at the 500k budget has its 500k return (556.4), so the row's mean is its
+    // three seeds' at 500k, 398.9, and done. Read on past the budget it would be 378.7.
+    let md = run(
+        "docs/results/wall_clock.py",
+        &["--hours", "2", "docs/results/rates-all-rows.json"],
+        &[],
+    );
+    let rows = table_rows(&md);
+    let start = rows.iter().position(|r| r[0] == "walker-run").unwrap();
+    let mlp = rows[start..]
+        .iter()
+        .find(|r| r[1].starts_with("`mlp`"))
+        .expect("walker-run's mlp row");
+    assert_eq!(mlp[2], "398.9 done", "{mlp:?}");
+}
+
+#[test]
 fn the_mean_multiplier_table_counts_the_evaluations_at_its_floor() {
     // docs/experiments.md quotes these: walker-run's `simba` seed 0 has `alpha_mean` below
     // 1e-6 at 21 of its 25 evaluations after learning started, its MLP seed 0 at none of 50.

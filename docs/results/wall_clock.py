@@ -49,8 +49,10 @@ def seed_result(rows, target, one, two):
 
 def return_after(rows, rate, hours, budget):
     """(return, ended) of a run after `hours` at a one-thread rate: its last evaluation reached
-    by then, its final one if it reached the budget sooner, (None, False) if it stopped short
-    of both. The first evaluation (step 0, no updates) is reached at once."""
+    by then, its evaluation at the budget if it reached the budget sooner, (None, False) if it
+    stopped short of both. A run carried on past the budget is read as if stopped there (a user
+    stops at the budget). The first evaluation (step 0, no updates) is reached at once."""
+    rows = [r for r in rows if int(r["env_steps"]) <= budget]
     last = rows[-1]
     if hours_to(last, rate) <= hours:
         if int(last["env_steps"]) >= budget:
