@@ -12,12 +12,16 @@ link() { mkdir -p "$tmp/$1"; ln -s "$PWD/$r/$1/$3" "$tmp/$1/seed$2"; }
 for s in 0 1 2 3 4; do link cartpole-balance $s clip-dual-1e-3-seed$s; done
 # pendulum-swingup: the `ceiling` row, its default since 2026-12-07 (the MLP seeds: mlp-seed*).
 for s in 0 1 2; do link pendulum-swingup $s mlp-alphamax1e3-seed$s; done
-for s in 0 1 2; do link walker-stand $s default-seed$s; done
+# walker-stand: seed 0 run on to 500k as mlp-seed0 (default-seed0 is its first 300k).
+link walker-stand 0 mlp-seed0
+for s in 1 2; do link walker-stand $s default-seed$s; done
 for s in 0 1 2; do link walker-walk $s default-seed$s; done
 # walker-run: the `simba` row, its default since 2026-12-07 (the MLP seeds: default-seed0,
 # mlp-seed1, mlp-seed2).
 for s in 0 1 2; do link walker-run $s simba-seed$s; done
-for s in 0 1 2; do link cheetah-run $s default-seed$s; done
+# cheetah-run: seeds 0 and 1 run on to 500k as mlp-seed0/1 (default-seed0/1 are their first 480k).
+for s in 0 1; do link cheetah-run $s mlp-seed$s; done
+link cheetah-run 2 default-seed2
 # hopper-stand: the `simba` row, its default since 2026-12-06 (one seed; the MLP seeds:
 # eps-penalty-0.01-seed*).
 link hopper-stand 0 simba-seed0

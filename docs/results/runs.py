@@ -41,7 +41,7 @@ TASK_ROWS = {
         ("simba", "`simba` (the default now)", [f"walker-run/simba-seed{s}" for s in range(3)]),
     ]),
     "cheetah-run": (800, [
-        ("default", "default", [f"cheetah-run/default-seed{s}" for s in range(3)]),
+        ("default", "default", [f"cheetah-run/mlp-seed{s}" for s in (0, 1)] + ["cheetah-run/default-seed2"]),
         ("simba", "`simba` (seed 0, no logit floor)", ["cheetah-run/simba-seed0"]),
     ]),
     "hopper-stand": (900, [
