@@ -132,14 +132,29 @@ fn the_wall_clock_table_reads_every_row_it_has_rates_for() {
     }
 }
 
-#[test]
-fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons() {
+/// The per-hour table (`wall_clock.py --hours HOURS`): its markdown and its rows.
+fn per_hour(hours: &str) -> (String, Vec<Vec<String>>) {
     let md = run(
         "docs/results/wall_clock.py",
-        &["--hours", "0.5,1", "docs/results/rates-all-rows.json"],
+        &["--hours", hours, "docs/results/rates-all-rows.json"],
         &[],
     );
     let rows = table_rows(&md);
+    (md, rows)
+}
+
+/// The line of `task`'s block whose row label starts with `label`.
+fn row_of<'a>(rows: &'a [Vec<String>], task: &str, label: &str) -> &'a [String] {
+    let start = rows.iter().position(|r| r[0] == task).unwrap();
+    rows[start..]
+        .iter()
+        .find(|r| r[1].starts_with(label))
+        .unwrap_or_else(|| panic!("{task}'s {label} row"))
+}
+
+#[test]
+fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons() {
+    let (md, rows) = per_hour("0.5,1");
     assert_eq!(
         task_names(&rows).len(),
         10,
@@ -147,11 +162,7 @@ fn the_per_hour_table_reads_the_runs_at_their_rates_and_bolds_only_comparisons()
     );
     // hopper-hop's `simba` seeds after one hour of one thread: 266.3, 249.5, 186.7, mean
     // 234.2, as per_hour.py reads them (docs/experiments.md, "Wall clock"), the best row there.
-    let start = rows.iter().position(|r| r[0] == "hopper-hop").unwrap();
-    let hop = rows[start..]
-        .iter()
-        .find(|r| r[1].starts_with("`simba` (the default now)"))
-        .expect("hopper-hop's simba row");
+    let hop = row_of(&rows, "hopper-hop", "`simba` (the default now)");
     assert_eq!(hop[3], "**234.2**", "{hop:?}");
     // A task with one row (walker-walk: no `simba` run kept yet) has nothing to compare: no
     // bold.
@@ -170,17 +181,8 @@ fn the_per_hour_table_reads_a_run_carried_past_its_budget_at_the_budget() {
     // walker-run's MLP seed 0 ran on to 1M (2.44 hours of one thread); after two hours a user
     // who stopped at the 500k budget has its 500k return (556.4), so the row's mean is its
     // three seeds' at 500k, 398.9, and done. Read on past the budget it would be 378.7.
-    let md = run(
-        "docs/results/wall_clock.py",
-        &["--hours", "2", "docs/results/rates-all-rows.json"],
-        &[],
-    );
-    let rows = table_rows(&md);
-    let start = rows.iter().position(|r| r[0] == "walker-run").unwrap();
-    let mlp = rows[start..]
-        .iter()
-        .find(|r| r[1].starts_with("`mlp`"))
-        .expect("walker-run's mlp row");
+    let (_, rows) = per_hour("2");
+    let mlp = row_of(&rows, "walker-run", "`mlp`");
     assert_eq!(mlp[2], "398.9 done", "{mlp:?}");
 }
 
