@@ -379,3 +379,42 @@ fn the_scripts_know_which_row_each_moved_default_repeats_as_the_table_does() {
         );
     }
 }
+
+#[test]
+fn the_ablation_table_compares_each_mechanism_on_the_seeds_both_rows_reached() {
+    let md = run("docs/results/ablation.py", &[], &[]);
+    let rows = table_rows(&md);
+    assert_eq!(rows.len(), 6, "one line per mechanism:\n{md}");
+    let mechanism = |name: &str| {
+        rows.iter()
+            .find(|r| r[0].starts_with(name))
+            .unwrap_or_else(|| panic!("no line for {name}:\n{md}"))
+    };
+    // hopper-hop's seed 0 (the kept metrics.csv at 500k): `simba` 305.0, `residual` 247.4,
+    // `categorical` 247.8, `mlp` 147.8; the critic is on in the first row of each pair.
+    assert_eq!(
+        mechanism("categorical critic")[2],
+        "305.0 / 247.4 (+57.6; seed 0)<br>247.8 / 147.8 (+100.1; seed 0)"
+    );
+    // walker-run's MLP seed 0 is the row's `default-seed0` (runs.TASK_ROWS), its seeds 1-2
+    // `mlp-seed1/2`: all three at 500k. hopper-hop's MLP seeds 1-2 stopped at 460k: seed 0 at
+    // the budget, then the three seeds where all six runs are.
+    let both = mechanism("both");
+    assert_eq!(both[3], "467.9 / 398.9 (+69.0; seeds 0-2)");
+    assert_eq!(
+        both[2],
+        "305.0 / 147.8 (+157.2; seed 0); seeds 0-2 at 460k: 261.7 / 169.5 (+92.2)"
+    );
+    // Past the budget no seed has both rows: the sphere's pair (both to 500k) is read where
+    // the two stopped, and says so.
+    let late = run("docs/results/ablation.py", &["--at", "600000"], &[]);
+    let late = table_rows(&late);
+    let sphere = late
+        .iter()
+        .find(|r| r[0].starts_with("weights on"))
+        .unwrap();
+    assert_eq!(
+        sphere[3],
+        "472.3 / 524.0 (-51.7; seed 0) at 500k, stopped short"
+    );
+}
