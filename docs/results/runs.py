@@ -39,6 +39,8 @@ TASK_ROWS = {
     "walker-run": (700, [
         ("mlp", "`mlp` (the default before)", ["walker-run/default-seed0", "walker-run/mlp-seed1", "walker-run/mlp-seed2"]),
         ("simba", "`simba` (the default now)", [f"walker-run/simba-seed{s}" for s in range(3)]),
+        ("residual", "`residual` (scalar critic; ablation)", ["walker-run/residual-seed0"]),
+        ("categorical", "`categorical` (MLP networks; ablation)", ["walker-run/categorical-seed0"]),
     ]),
     "cheetah-run": (800, [
         ("default", "default", [f"cheetah-run/mlp-seed{s}" for s in (0, 1)] + ["cheetah-run/default-seed2"]),
