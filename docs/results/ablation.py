@@ -23,7 +23,7 @@ from pathlib import Path
 import runs
 
 HERE = Path(__file__).resolve().parent
-TASKS = ["hopper-hop", "walker-run"]
+TASKS = runs.ABLATION_TASKS
 SEEDS = [0, 1, 2]
 # mechanism -> pairs of (row with it on, row with it off)
 MECHANISMS = [

@@ -69,6 +69,10 @@ MOVED_DEFAULT = {
     "pendulum-swingup": "ceiling",
 }
 
+# The tasks the ablation runs every mechanism on and off (issue 35 item 6): scripts/frontier
+# plans them, ablation.py tables them.
+ABLATION_TASKS = ["hopper-hop", "walker-run"]
+
 # The row each task trains by default, by its `net` above.
 DEFAULT_NET = {task: MOVED_DEFAULT.get(task, "default") for task in TASK_ROWS}
 
